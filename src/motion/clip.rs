@@ -1,0 +1,572 @@
+//! The canonical motion type and its operations.
+//!
+//! Shapes: `rotations` is `[frames][joints]` local axis-angle (radians),
+//! stored frame-major in one `Vec`; `trans` is `[frames]` root translation in
+//! metres (y up). The root joint's world position is
+//! `skeleton.offsets[0] + trans[f]` (the SMPL convention).
+//!
+//! Mutation is visible: every op here takes `&self` and returns a new motion.
+
+use super::rotation::*;
+use super::skeleton::{Skeleton, SMPL13_FROM_24};
+use super::MotionError;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Labels by kind: `genre`, `dancer`, `situation`, `music`, `tempo_bpm`,
+/// `choreography`, `content`, `style`, `corpus`.
+pub type Labels = BTreeMap<String, String>;
+
+/// Hard ceilings that protect every reader and op from absurd inputs.
+pub const MAX_FRAMES: usize = 10_000_000;
+pub const MAX_JOINTS: usize = 1024;
+pub const MAX_FPS: f64 = 10_000.0;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Motion {
+    /// Where it came from (file path or a given name); used in error messages.
+    pub name: String,
+    /// Frames per second.
+    pub fps: f64,
+    pub skeleton: Skeleton,
+    /// `[frames]` root translation, metres.
+    pub trans: Vec<Vec3>,
+    /// `[frames][joints]` local axis-angle, frame-major.
+    pub rotations: Vec<Vec3>,
+    pub labels: Labels,
+}
+
+impl Motion {
+    /// Build and validate.
+    pub fn new(
+        name: impl Into<String>,
+        fps: f64,
+        skeleton: Skeleton,
+        trans: Vec<Vec3>,
+        rotations: Vec<Vec3>,
+        labels: Labels,
+    ) -> Result<Self, MotionError> {
+        let m = Motion {
+            name: name.into(),
+            fps,
+            skeleton,
+            trans,
+            rotations,
+            labels,
+        };
+        m.validate()?;
+        Ok(m)
+    }
+
+    pub fn frames(&self) -> usize {
+        self.trans.len()
+    }
+    pub fn joints(&self) -> usize {
+        self.skeleton.len()
+    }
+    /// `(frames - 1) / fps`: the time from the first frame to the last.
+    pub fn duration_s(&self) -> f64 {
+        if self.frames() == 0 {
+            0.0
+        } else {
+            (self.frames() - 1) as f64 / self.fps
+        }
+    }
+    pub fn rot(&self, frame: usize, joint: usize) -> Vec3 {
+        self.rotations[frame * self.joints() + joint]
+    }
+    /// The local rotations of one frame, `[joints]`.
+    pub fn frame_rotations(&self, frame: usize) -> &[Vec3] {
+        let j = self.joints();
+        &self.rotations[frame * j..(frame + 1) * j]
+    }
+
+    pub fn validate(&self) -> Result<(), MotionError> {
+        let file = self.name.as_str();
+        self.skeleton.validate().map_err(|e| e.in_file(file))?;
+        if !(self.fps.is_finite() && self.fps > 0.0 && self.fps <= MAX_FPS) {
+            return Err(MotionError::invalid(
+                file,
+                "fps",
+                format!("{} is not a frame rate in (0, {MAX_FPS}]", self.fps),
+            ));
+        }
+        if self.joints() > MAX_JOINTS {
+            return Err(MotionError::invalid(
+                file,
+                "joints",
+                format!("{} joints is over the limit of {MAX_JOINTS}", self.joints()),
+            ));
+        }
+        if self.frames() == 0 {
+            return Err(MotionError::invalid(file, "frames", "the motion has no frames"));
+        }
+        if self.frames() > MAX_FRAMES {
+            return Err(MotionError::invalid(
+                file,
+                "frames",
+                format!("{} frames is over the limit of {MAX_FRAMES}", self.frames()),
+            ));
+        }
+        if self.rotations.len() != self.frames() * self.joints() {
+            return Err(MotionError::invalid(
+                file,
+                "rotations",
+                format!(
+                    "expected {} frames x {} joints = {} rotations, found {}",
+                    self.frames(),
+                    self.joints(),
+                    self.frames() * self.joints(),
+                    self.rotations.len()
+                ),
+            ));
+        }
+        if let Some(i) = self.trans.iter().position(|t| t.iter().any(|v| !v.is_finite())) {
+            return Err(MotionError::invalid(
+                file,
+                "trans",
+                format!("frame {i} has a NaN or infinite root translation"),
+            ));
+        }
+        if let Some(i) = self.rotations.iter().position(|r| r.iter().any(|v| !v.is_finite())) {
+            let j = self.joints();
+            return Err(MotionError::invalid(
+                file,
+                "rotations",
+                format!(
+                    "frame {} joint {} ('{}') has a NaN or infinite rotation",
+                    i / j,
+                    i % j,
+                    self.skeleton.names[i % j]
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Global joint rotations as quaternions, `[frames][joints]`.
+    pub fn global_quats(&self) -> Vec<Quat> {
+        let j = self.joints();
+        let mut out = Vec::with_capacity(self.rotations.len());
+        for f in 0..self.frames() {
+            let base = out.len();
+            for k in 0..j {
+                let local = axis_angle_to_quat(self.rotations[f * j + k]);
+                let g = match self.skeleton.parents[k] {
+                    None => local,
+                    Some(p) => quat_mul(out[base + p], local),
+                };
+                out.push(g);
+            }
+        }
+        out
+    }
+
+    /// Forward kinematics: joint positions in metres, `[frames][joints]`.
+    pub fn positions(&self) -> Vec<Vec3> {
+        let j = self.joints();
+        let mut pos = Vec::with_capacity(self.rotations.len());
+        let mut glob: Vec<Quat> = vec![IDENTITY_QUAT; j];
+        for f in 0..self.frames() {
+            let base = pos.len();
+            for k in 0..j {
+                let local = axis_angle_to_quat(self.rotations[f * j + k]);
+                match self.skeleton.parents[k] {
+                    None => {
+                        glob[k] = local;
+                        pos.push(add(self.skeleton.offsets[k], self.trans[f]));
+                    }
+                    Some(p) => {
+                        glob[k] = quat_mul(glob[p], local);
+                        let p_pos: Vec3 = pos[base + p];
+                        pos.push(add(p_pos, quat_rotate(glob[p], self.skeleton.offsets[k])));
+                    }
+                }
+            }
+        }
+        pos
+    }
+
+    /// Joint positions of the rest pose (all local rotations identity, no
+    /// translation), `[joints]`.
+    pub fn rest_positions(skeleton: &Skeleton) -> Vec<Vec3> {
+        let mut pos: Vec<Vec3> = Vec::with_capacity(skeleton.len());
+        for k in 0..skeleton.len() {
+            match skeleton.parents[k] {
+                None => pos.push(skeleton.offsets[k]),
+                Some(p) => pos.push(add(pos[p], skeleton.offsets[k])),
+            }
+        }
+        pos
+    }
+
+    /// A copy with other rotations and translations (same skeleton, fps, labels).
+    pub fn with_data(&self, trans: Vec<Vec3>, rotations: Vec<Vec3>) -> Motion {
+        Motion {
+            name: self.name.clone(),
+            fps: self.fps,
+            skeleton: self.skeleton.clone(),
+            trans,
+            rotations,
+            labels: self.labels.clone(),
+        }
+    }
+
+    /// Frames `[start, end)`.
+    pub fn cut(&self, start: usize, end: usize) -> Result<Motion, MotionError> {
+        if start >= end || end > self.frames() {
+            return Err(MotionError::invalid(
+                &self.name,
+                "range",
+                format!(
+                    "frames [{start}, {end}) are not a non-empty range inside 0..{}",
+                    self.frames()
+                ),
+            ));
+        }
+        let j = self.joints();
+        Ok(self.with_data(
+            self.trans[start..end].to_vec(),
+            self.rotations[start * j..end * j].to_vec(),
+        ))
+    }
+
+    /// Resample to `fps`: rotations by quaternion SLERP, translation by lerp.
+    /// The new clip spans the same time from the first frame: `floor(duration
+    /// * fps) + 1` frames.
+    pub fn resample(&self, fps: f64) -> Result<Motion, MotionError> {
+        if !(fps.is_finite() && fps > 0.0 && fps <= MAX_FPS) {
+            return Err(MotionError::invalid(
+                &self.name,
+                "fps",
+                format!("{fps} is not a frame rate in (0, {MAX_FPS}]"),
+            ));
+        }
+        if (fps - self.fps).abs() < 1e-9 {
+            return Ok(self.clone());
+        }
+        let n_new = (self.duration_s() * fps + 1e-6).floor() as usize + 1;
+        if n_new > MAX_FRAMES {
+            return Err(MotionError::invalid(
+                &self.name,
+                "fps",
+                format!("resampling to {fps} fps would give {n_new} frames, over the limit"),
+            ));
+        }
+        let j = self.joints();
+        let last = self.frames() - 1;
+        let mut trans = Vec::with_capacity(n_new);
+        let mut rots = Vec::with_capacity(n_new * j);
+        for i in 0..n_new {
+            let s = i as f64 * self.fps / fps;
+            let f0 = (s.floor() as usize).min(last);
+            let f1 = (f0 + 1).min(last);
+            let t = (s - f0 as f64).clamp(0.0, 1.0);
+            if t < 1e-9 || f0 == f1 {
+                trans.push(self.trans[f0]);
+                rots.extend_from_slice(self.frame_rotations(f0));
+                continue;
+            }
+            trans.push(lerp3(self.trans[f0], self.trans[f1], t));
+            for k in 0..j {
+                let qa = axis_angle_to_quat(self.rot(f0, k));
+                let qb = axis_angle_to_quat(self.rot(f1, k));
+                rots.push(quat_to_axis_angle(slerp(qa, qb, t)));
+            }
+        }
+        let mut m = self.with_data(trans, rots);
+        m.fps = fps;
+        Ok(m)
+    }
+
+    /// The 13 joints of thesis 000 Table A.1 from an SMPL-24 motion. Each kept
+    /// joint's new local rotation is the product of the local rotations along
+    /// the dropped chain above it, so kept joints keep their global
+    /// orientation (the rest offsets are folded the same way).
+    pub fn to_smpl13(&self) -> Result<Motion, MotionError> {
+        match self.skeleton.kind.as_str() {
+            "smpl13" => return Ok(self.clone()),
+            "smpl24" => {}
+            other => {
+                return Err(MotionError::invalid(
+                    &self.name,
+                    "skeleton",
+                    format!(
+                        "the 13-joint subset needs an SMPL-24 motion, this one is '{other}' (retarget it first)"
+                    ),
+                ))
+            }
+        }
+        let sk13 = Skeleton::smpl13();
+        let full = &self.skeleton;
+        let j = self.joints();
+        let mut rots = Vec::with_capacity(self.frames() * 13);
+        for f in 0..self.frames() {
+            for &k in SMPL13_FROM_24.iter() {
+                let mut q = axis_angle_to_quat(self.rotations[f * j + k]);
+                let mut p = full.parents[k];
+                while let Some(pi) = p {
+                    if SMPL13_FROM_24.contains(&pi) {
+                        break;
+                    }
+                    q = quat_mul(axis_angle_to_quat(self.rotations[f * j + pi]), q);
+                    p = full.parents[pi];
+                }
+                rots.push(quat_to_axis_angle(q));
+            }
+        }
+        // The root offset is the same joint's, so the translation carries over.
+        let mut m = self.with_data(self.trans.clone(), rots);
+        m.skeleton = sk13;
+        Ok(m)
+    }
+
+    /// Back to SMPL-24 from the 13-joint subset: dropped joints get the
+    /// identity rotation.
+    pub fn smpl13_to_smpl24(&self) -> Result<Motion, MotionError> {
+        if self.skeleton.kind != "smpl13" {
+            return Err(MotionError::invalid(&self.name, "skeleton", "expected an smpl13 motion"));
+        }
+        let mut rots = vec![[0.0; 3]; self.frames() * 24];
+        for f in 0..self.frames() {
+            for (i, &k) in SMPL13_FROM_24.iter().enumerate() {
+                rots[f * 24 + k] = self.rot(f, i);
+            }
+        }
+        let mut m = self.with_data(self.trans.clone(), rots);
+        m.skeleton = Skeleton::smpl24();
+        Ok(m)
+    }
+
+    /// The axis (0 = x, 1 = y, 2 = z) across which the rest pose's left and
+    /// right joints lie; `None` when the skeleton has no named pairs.
+    pub fn lateral_axis(skeleton: &Skeleton) -> Option<usize> {
+        let pairs = skeleton.mirror_pairs();
+        if pairs.is_empty() {
+            return None;
+        }
+        let rest = Motion::rest_positions(skeleton);
+        let mut spread = [0.0f64; 3];
+        for (a, b) in pairs {
+            for (k, s) in spread.iter_mut().enumerate() {
+                *s += (rest[a][k] - rest[b][k]).abs();
+            }
+        }
+        let axis = (0..3).max_by(|&x, &y| spread[x].total_cmp(&spread[y]))?;
+        (spread[axis] > 1e-9).then_some(axis)
+    }
+
+    /// Bilateral mirror (thesis 000 §A.5): swap left/right joints and reflect
+    /// across the skeleton's lateral plane. For SMPL (lateral axis x) each
+    /// axis-angle `(x, y, z)` becomes `(x, −y, −z)`; the root's world position
+    /// is reflected exactly (`x → −x`), so mirroring twice is the identity.
+    pub fn mirror(&self) -> Result<Motion, MotionError> {
+        let axis = Motion::lateral_axis(&self.skeleton).ok_or_else(|| {
+            MotionError::invalid(
+                &self.name,
+                "skeleton",
+                "no left/right joint pairs found by name, cannot mirror",
+            )
+        })?;
+        let map = self.skeleton.mirror_map();
+        let reflect = |v: Vec3| {
+            let mut r = v;
+            r[axis] = -r[axis];
+            r
+        };
+        // Reflection M: a rotation R becomes M R M, i.e. axis-angle v -> -M v.
+        let reflect_rot = |v: Vec3| scale(reflect(v), -1.0);
+        let j = self.joints();
+        let mut rots = vec![[0.0; 3]; self.rotations.len()];
+        for f in 0..self.frames() {
+            for k in 0..j {
+                rots[f * j + map[k]] = reflect_rot(self.rotations[f * j + k]);
+            }
+        }
+        let o0 = self.skeleton.offsets[0];
+        let trans = self
+            .trans
+            .iter()
+            .map(|&t| sub(reflect(add(o0, t)), o0))
+            .collect();
+        Ok(self.with_data(trans, rots))
+    }
+
+    /// The facing direction on the ground plane (unit `[x, 0, z]`) at a frame,
+    /// from the lowest-level left/right joint pair (the hips on a human): it is
+    /// `(left − right) × up`. `None` when it cannot be told.
+    pub fn facing(&self, frame: usize) -> Option<Vec3> {
+        let pairs = self.skeleton.mirror_pairs();
+        let depth = |mut k: usize| {
+            let mut d = 0;
+            while let Some(p) = self.skeleton.parents[k] {
+                d += 1;
+                k = p;
+            }
+            d
+        };
+        let &(a, b) = pairs.iter().min_by_key(|(a, _)| depth(*a))?;
+        let (left, right) = if super::skeleton::is_left(&self.skeleton.names[a]) == Some(true) {
+            (a, b)
+        } else {
+            (b, a)
+        };
+        let one = self.cut(frame, frame + 1).ok()?;
+        let pos = one.positions();
+        let lat = sub(pos[left], pos[right]);
+        let fwd = cross(lat, [0.0, 1.0, 0.0]);
+        normalize([fwd[0], 0.0, fwd[2]])
+    }
+
+    /// Root normalisation: the root starts above the origin (x = z = 0, height
+    /// kept) and the body faces +z at the first frame (a rotation about y).
+    pub fn normalize_root(&self) -> Result<Motion, MotionError> {
+        let fwd = self.facing(0).ok_or_else(|| {
+            MotionError::invalid(
+                &self.name,
+                "skeleton",
+                "cannot tell which way the body faces (no left/right hips found)",
+            )
+        })?;
+        let yaw = quat_between(fwd, [0.0, 0.0, 1.0]);
+        let o0 = self.skeleton.offsets[0];
+        let p0 = add(o0, self.trans[0]);
+        let c = [p0[0], 0.0, p0[2]];
+        let j = self.joints();
+        let mut rots = self.rotations.clone();
+        for f in 0..self.frames() {
+            let q = quat_mul(yaw, axis_angle_to_quat(rots[f * j]));
+            rots[f * j] = quat_to_axis_angle(q);
+        }
+        let trans = self
+            .trans
+            .iter()
+            .map(|&t| sub(quat_rotate(yaw, sub(add(o0, t), c)), o0))
+            .collect();
+        Ok(self.with_data(trans, rots))
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A hand-checkable SMPL clip: the left elbow swings about z as a sine,
+    /// the root walks along +x.
+    pub fn sine_clip(frames: usize, fps: f64) -> Motion {
+        let sk = Skeleton::smpl24();
+        let mut rots = vec![[0.0; 3]; frames * 24];
+        let mut trans = Vec::new();
+        for f in 0..frames {
+            let t = f as f64 / fps;
+            rots[f * 24 + 18] = [0.0, 0.0, 0.8 * (2.0 * std::f64::consts::PI * t).sin()];
+            rots[f * 24 + 1] = [0.3 * t.sin(), 0.1, 0.0];
+            trans.push([0.5 * t, 0.9, 0.0]);
+        }
+        Motion::new("sine", fps, sk, trans, rots, Labels::new()).unwrap()
+    }
+
+    #[test]
+    fn fk_rest_pose_is_sum_of_offsets() {
+        let sk = Skeleton::smpl24();
+        let m = Motion::new("rest", 30.0, sk.clone(), vec![[0.0; 3]], vec![[0.0; 3]; 24], Labels::new()).unwrap();
+        let pos = m.positions();
+        let rest = Motion::rest_positions(&sk);
+        for k in 0..24 {
+            for a in 0..3 {
+                assert!((pos[k][a] - rest[k][a]).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn fk_elbow_bend_moves_wrist_by_hand() {
+        // Rotating the left elbow by 90° about y swings the forearm (offset
+        // along +x) to point along -z.
+        let sk = Skeleton::smpl24();
+        let mut rots = vec![[0.0; 3]; 24];
+        rots[18] = [0.0, std::f64::consts::FRAC_PI_2, 0.0];
+        let m = Motion::new("bend", 30.0, sk.clone(), vec![[0.0; 3]], rots, Labels::new()).unwrap();
+        let pos = m.positions();
+        let o = sk.offsets[20];
+        let d = sub(pos[20], pos[18]);
+        let expect = [o[2], o[1], -o[0]];
+        for a in 0..3 {
+            assert!((d[a] - expect[a]).abs() < 1e-12, "{d:?} vs {expect:?}");
+        }
+    }
+
+    #[test]
+    fn mirror_twice_is_identity() {
+        let m = sine_clip(50, 60.0);
+        let mm = m.mirror().unwrap().mirror().unwrap();
+        for (a, b) in m.rotations.iter().zip(&mm.rotations) {
+            assert!(geodesic_axis_angle(*a, *b) < 1e-12);
+        }
+        for (a, b) in m.trans.iter().zip(&mm.trans) {
+            assert!(norm(sub(*a, *b)) < 1e-12);
+        }
+        let mir = m.mirror().unwrap();
+        // The left elbow's swing now lives on the right elbow, z negated.
+        let r = mir.rot(10, 19);
+        let l = m.rot(10, 18);
+        assert!((r[2] + l[2]).abs() < 1e-12 && (r[0] - l[0]).abs() < 1e-12);
+    }
+
+    #[test]
+    fn resample_down_then_up_keeps_positions_close() {
+        let m = sine_clip(121, 60.0);
+        let down = m.resample(20.0).unwrap();
+        assert_eq!(down.frames(), 41);
+        // Every third frame is an exact sample.
+        assert_eq!(down.rot(5, 18), m.rot(15, 18));
+        let up = down.resample(60.0).unwrap();
+        assert_eq!(up.frames(), 121);
+        let (a, b) = (m.positions(), up.positions());
+        let max = a.iter().zip(&b).map(|(x, y)| norm(sub(*x, *y))).fold(0.0, f64::max);
+        assert!(max < 0.01, "max position error {max} m");
+    }
+
+    #[test]
+    fn smpl13_keeps_global_orientation_of_kept_joints() {
+        let mut m = sine_clip(5, 30.0);
+        // Bend the spine so that folding matters.
+        for f in 0..5 {
+            m.rotations[f * 24 + 3] = [0.4, 0.0, 0.2];
+            m.rotations[f * 24 + 13] = [0.0, 0.3, 0.0];
+        }
+        let g24 = m.global_quats();
+        let s = m.to_smpl13().unwrap();
+        let g13 = s.global_quats();
+        for f in 0..5 {
+            for (i, &k) in SMPL13_FROM_24.iter().enumerate() {
+                assert!(geodesic_quat(g24[f * 24 + k], g13[f * 13 + i]) < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn normalize_root_faces_plus_z_at_origin() {
+        let mut m = sine_clip(10, 30.0);
+        for f in 0..10 {
+            m.rotations[f * 24] = [0.0, 1.2, 0.0];
+            m.trans[f] = add(m.trans[f], [3.0, 0.0, -2.0]);
+        }
+        let n = m.normalize_root().unwrap();
+        let fwd = n.facing(0).unwrap();
+        assert!((fwd[2] - 1.0).abs() < 1e-9, "{fwd:?}");
+        let p = n.positions();
+        assert!(p[0][0].abs() < 1e-9 && p[0][2].abs() < 1e-9);
+        assert!((p[0][1] - m.positions()[0][1]).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_values_are_rejected_with_field() {
+        let mut m = sine_clip(3, 30.0);
+        m.rotations[30][1] = f64::NAN;
+        let e = m.validate().unwrap_err().to_string();
+        assert!(e.contains("rotations") && e.contains("frame 1"), "{e}");
+        assert!(m.cut(2, 2).is_err());
+        assert!(m.resample(0.0).is_err());
+    }
+}

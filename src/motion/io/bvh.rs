@@ -1,0 +1,678 @@
+//! BVH: reader for any hierarchy and channel order, and a writer.
+//!
+//! Reading conventions (the ones Blender's importer uses):
+//! - Rotation channels compose in the order listed, about the moving axes:
+//!   `Zrotation Xrotation Yrotation` is `R = Rz Rx Ry` (degrees in the file).
+//! - A joint with position channels takes them as its local translation in
+//!   place of its `OFFSET`.
+//! - A static root with a single child that carries the translation (as in
+//!   the Bandai Namco takes, whose `joint_Root` never moves and whose `Hips`
+//!   carries 6 channels) is folded away: the child becomes the root.
+//! - Any other joint's position channels must be constant (they become its
+//!   offset): choreo's motion model is root translation + joint rotations.
+//! - Units become metres: by `BvhReadOptions::metres_per_unit`, or detected
+//!   from the sum of bone lengths (see [`detect_unit`]).
+
+use crate::motion::clip::{Motion, MAX_FRAMES, MAX_JOINTS};
+use crate::motion::labels;
+use crate::motion::rotation::*;
+use crate::motion::skeleton::{EndSite, Skeleton};
+use crate::motion::MotionError;
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Channel {
+    Pos(Axis),
+    Rot(Axis),
+}
+
+impl Channel {
+    fn name(self) -> String {
+        match self {
+            Channel::Pos(a) => format!("{}position", a.letter()),
+            Channel::Rot(a) => format!("{}rotation", a.letter()),
+        }
+    }
+    fn parse(s: &str) -> Option<Channel> {
+        let (axis, kind) = s.split_at(1.min(s.len()));
+        let axis = match axis {
+            "X" | "x" => Axis::X,
+            "Y" | "y" => Axis::Y,
+            "Z" | "z" => Axis::Z,
+            _ => return None,
+        };
+        match kind.to_ascii_lowercase().as_str() {
+            "position" => Some(Channel::Pos(axis)),
+            "rotation" => Some(Channel::Rot(axis)),
+            _ => None,
+        }
+    }
+}
+
+/// How a BVH file laid out its channels, kept so that writing a motion read
+/// from BVH keeps each joint's rotation order and channel set.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct BvhLayout {
+    /// `(joint name, channels)` for every joint of the motion.
+    pub joints: Vec<(String, Vec<Channel>)>,
+    /// Metres per file unit used when reading.
+    pub metres_per_unit: f64,
+}
+
+impl BvhLayout {
+    fn channels_of(&self, name: &str) -> Option<&[Channel]> {
+        self.joints.iter().find(|(n, _)| n == name).map(|(_, c)| c.as_slice())
+    }
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct BvhReadOptions {
+    /// Metres per file unit; `None` detects it.
+    pub metres_per_unit: Option<f64>,
+}
+
+/// Metres per unit of the CMU mocap BVH conversions (ASF `length 0.45`
+/// inches): 0.0254 / 0.45.
+pub const CMU_UNIT: f64 = 0.0254 / 0.45;
+
+/// Guess metres per file unit from the summed bone lengths `s` (file units)
+/// of a human skeleton (about 4.3 m for SMPL): 1.5–15 → metres, 15–150 → CMU
+/// units, 150–1,500 → centimetres, 1,500–15,000 → millimetres. Inches are not
+/// guessed (they overlap centimetres); pass the scale explicitly for them.
+pub fn detect_unit(s: f64) -> Option<f64> {
+    match s {
+        s if (1.5..15.0).contains(&s) => Some(1.0),
+        s if (15.0..150.0).contains(&s) => Some(CMU_UNIT),
+        s if (150.0..1500.0).contains(&s) => Some(0.01),
+        s if (1500.0..15000.0).contains(&s) => Some(0.001),
+        _ => None,
+    }
+}
+
+struct RawJoint {
+    name: String,
+    parent: Option<usize>,
+    offset: Vec3,
+    channels: Vec<Channel>,
+    /// Index of this joint's first channel in a frame row.
+    first: usize,
+}
+
+struct Tokens<'a> {
+    file: &'a str,
+    it: std::iter::Peekable<std::str::SplitWhitespace<'a>>,
+}
+
+impl<'a> Tokens<'a> {
+    fn next(&mut self, what: &str) -> Result<&'a str, MotionError> {
+        self.it
+            .next()
+            .ok_or_else(|| MotionError::invalid(self.file, what, "file ends early (truncated hierarchy)"))
+    }
+    fn expect(&mut self, want: &str) -> Result<(), MotionError> {
+        let t = self.next(want)?;
+        if t.eq_ignore_ascii_case(want) {
+            Ok(())
+        } else {
+            Err(MotionError::invalid(self.file, want, format!("expected '{want}', found '{t}'")))
+        }
+    }
+    fn num(&mut self, field: &str) -> Result<f64, MotionError> {
+        let t = self.next(field)?;
+        let v: f64 = t
+            .parse()
+            .map_err(|_| MotionError::invalid(self.file, field, format!("'{t}' is not a number")))?;
+        if !v.is_finite() {
+            return Err(MotionError::invalid(self.file, field, format!("'{t}' is not finite")));
+        }
+        Ok(v)
+    }
+}
+
+/// The result of reading a BVH file.
+pub struct BvhMotion {
+    pub motion: Motion,
+    pub layout: BvhLayout,
+}
+
+pub fn read_bvh(file: &str, text: &str, opts: &BvhReadOptions) -> Result<BvhMotion, MotionError> {
+    let mut tk = Tokens {
+        file,
+        it: text.split_whitespace().peekable(),
+    };
+    tk.expect("HIERARCHY")?;
+    let mut joints: Vec<RawJoint> = Vec::new();
+    let mut end_sites: Vec<EndSite> = Vec::new();
+    // Stack of open blocks: Some(joint) or None for an End Site.
+    let mut stack: Vec<Option<usize>> = Vec::new();
+    let mut n_channels = 0usize;
+    let first = tk.next("ROOT")?;
+    if !first.eq_ignore_ascii_case("ROOT") {
+        return Err(MotionError::invalid(file, "ROOT", format!("expected 'ROOT', found '{first}'")));
+    }
+    let mut pending: Option<(String, bool)> = Some((read_name(&mut tk)?, false));
+    loop {
+        if let Some((name, is_end)) = pending.take() {
+            tk.expect("{")?;
+            tk.expect("OFFSET")?;
+            let offset = [tk.num("OFFSET")?, tk.num("OFFSET")?, tk.num("OFFSET")?];
+            let parent = stack.last().copied().flatten();
+            if is_end {
+                let parent = parent.ok_or_else(|| MotionError::invalid(file, "End Site", "outside any joint"))?;
+                end_sites.push(EndSite { parent, offset });
+                stack.push(None);
+            } else {
+                if joints.len() >= MAX_JOINTS {
+                    return Err(MotionError::invalid(file, "JOINT", format!("more than {MAX_JOINTS} joints")));
+                }
+                if stack.last().is_some_and(|s| s.is_none()) {
+                    return Err(MotionError::invalid(file, "JOINT", format!("joint '{name}' inside an End Site")));
+                }
+                let mut channels = Vec::new();
+                if tk.it.peek().is_some_and(|t| t.eq_ignore_ascii_case("CHANNELS")) {
+                    tk.next("CHANNELS")?;
+                    let n = tk.num("CHANNELS")?;
+                    if !(0.0..=6.0).contains(&n) || n.fract() != 0.0 {
+                        return Err(MotionError::invalid(file, "CHANNELS", format!("joint '{name}': {n} is not a channel count in 0..=6")));
+                    }
+                    for _ in 0..n as usize {
+                        let c = tk.next("CHANNELS")?;
+                        channels.push(Channel::parse(c).ok_or_else(|| {
+                            MotionError::invalid(file, "CHANNELS", format!("joint '{name}': unknown channel '{c}'"))
+                        })?);
+                    }
+                    let mut seen = std::collections::HashSet::new();
+                    if !channels.iter().all(|c| seen.insert(*c)) {
+                        return Err(MotionError::invalid(file, "CHANNELS", format!("joint '{name}' repeats a channel")));
+                    }
+                }
+                if joints.iter().any(|j| j.name == name) {
+                    return Err(MotionError::invalid(file, "JOINT", format!("joint name '{name}' appears twice")));
+                }
+                joints.push(RawJoint {
+                    name,
+                    parent,
+                    offset,
+                    first: n_channels,
+                    channels,
+                });
+                n_channels += joints.last().map_or(0, |j| j.channels.len());
+                stack.push(Some(joints.len() - 1));
+            }
+            if stack.len() > 256 {
+                return Err(MotionError::invalid(file, "HIERARCHY", "nesting deeper than 256"));
+            }
+        }
+        let t = tk.next("HIERARCHY")?;
+        if t == "}" {
+            stack.pop().ok_or_else(|| MotionError::invalid(file, "HIERARCHY", "unbalanced '}'"))?;
+            if stack.is_empty() {
+                break;
+            }
+        } else if t.eq_ignore_ascii_case("JOINT") {
+            pending = Some((read_name(&mut tk)?, false));
+        } else if t.eq_ignore_ascii_case("End") {
+            tk.expect("Site")?;
+            pending = Some(("End Site".into(), true));
+        } else {
+            return Err(MotionError::invalid(file, "HIERARCHY", format!("unexpected token '{t}'")));
+        }
+    }
+    // MOTION section.
+    tk.expect("MOTION")?;
+    let t = tk.next("Frames")?;
+    let frames_f = if t.eq_ignore_ascii_case("Frames:") {
+        tk.num("Frames")?
+    } else if let Some(v) = t.strip_prefix("Frames:") {
+        v.parse().map_err(|_| MotionError::invalid(file, "Frames", format!("'{v}' is not a number")))?
+    } else {
+        return Err(MotionError::invalid(file, "Frames", format!("expected 'Frames:', found '{t}'")));
+    };
+    if !(frames_f >= 1.0 && frames_f <= MAX_FRAMES as f64 && frames_f.fract() == 0.0) {
+        return Err(MotionError::invalid(file, "Frames", format!("{frames_f} is not a frame count in 1..={MAX_FRAMES}")));
+    }
+    let frames = frames_f as usize;
+    tk.expect("Frame")?;
+    tk.expect("Time:")?;
+    let dt = tk.num("Frame Time")?;
+    if !(dt > 0.0 && dt <= 10.0) {
+        return Err(MotionError::invalid(file, "Frame Time", format!("{dt} s is not a frame time in (0, 10]")));
+    }
+    let expected = frames
+        .checked_mul(n_channels)
+        .ok_or_else(|| MotionError::invalid(file, "Frames", "frame count x channels overflows"))?;
+    // Capacity bounded by what the text can hold (each value needs 2 bytes).
+    let mut values = Vec::with_capacity(expected.min(text.len() / 2 + 1));
+    for t in tk.it.by_ref() {
+        if values.len() == expected {
+            return Err(MotionError::invalid(file, "MOTION", format!("more values than {frames} frames x {n_channels} channels")));
+        }
+        let v: f64 = t.parse().map_err(|_| {
+            MotionError::invalid(
+                file,
+                "MOTION",
+                format!("frame {}: '{t}' is not a number", values.len() / n_channels.max(1)),
+            )
+        })?;
+        if !v.is_finite() {
+            return Err(MotionError::invalid(file, "MOTION", format!("frame {}: '{t}' is not finite", values.len() / n_channels.max(1))));
+        }
+        values.push(v);
+    }
+    if values.len() != expected {
+        return Err(MotionError::invalid(
+            file,
+            "MOTION",
+            format!(
+                "truncated: {} values for {frames} frames x {n_channels} channels = {expected}",
+                values.len()
+            ),
+        ));
+    }
+    build_motion(file, joints, end_sites, &values, frames, 1.0 / dt, opts)
+}
+
+fn read_name(tk: &mut Tokens<'_>) -> Result<String, MotionError> {
+    let mut parts = vec![tk.next("JOINT")?];
+    while tk.it.peek().is_some_and(|t| *t != "{") {
+        parts.push(tk.next("JOINT")?);
+        if parts.len() > 16 {
+            return Err(MotionError::invalid(tk.file, "JOINT", "joint name runs on without '{'"));
+        }
+    }
+    Ok(parts.join(" "))
+}
+
+/// A joint's per-frame local rotation and (if it has position channels) its
+/// local translation, from a frame row.
+fn local_transform(j: &RawJoint, row: &[f64]) -> (Quat, Option<Vec3>) {
+    let mut q = IDENTITY_QUAT;
+    let mut pos = j.offset;
+    let mut has_pos = false;
+    for (k, c) in j.channels.iter().enumerate() {
+        let v = row[j.first + k];
+        match c {
+            Channel::Rot(a) => q = quat_mul(q, axis_quat(*a, v.to_radians())),
+            Channel::Pos(a) => {
+                pos[a.index()] = v;
+                has_pos = true;
+            }
+        }
+    }
+    (quat_normalize(q), has_pos.then_some(pos))
+}
+
+fn build_motion(
+    file: &str,
+    mut joints: Vec<RawJoint>,
+    mut end_sites: Vec<EndSite>,
+    values: &[f64],
+    frames: usize,
+    fps: f64,
+    opts: &BvhReadOptions,
+) -> Result<BvhMotion, MotionError> {
+    let nc = values.len() / frames;
+    let row = |f: usize| &values[f * nc..(f + 1) * nc];
+    // Fold a static root with one child joint that carries its own translation.
+    let mut root_fold: Option<(Quat, Vec3)> = None;
+    let root_children: Vec<usize> = (1..joints.len()).filter(|&c| joints[c].parent == Some(0)).collect();
+    if root_children.len() == 1 && !end_sites.iter().any(|e| e.parent == 0) {
+        let child = root_children[0];
+        let child_has_pos = joints[child].channels.iter().any(|c| matches!(c, Channel::Pos(_)));
+        let r = &joints[0];
+        let static_root = (0..frames).all(|f| {
+            (0..r.channels.len()).all(|k| (row(f)[r.first + k] - row(0)[r.first + k]).abs() < 1e-9)
+        });
+        if child_has_pos && static_root {
+            let (q, p) = local_transform(&joints[0], row(0));
+            root_fold = Some((q, p.unwrap_or(joints[0].offset)));
+        }
+    }
+    let skip = usize::from(root_fold.is_some());
+    if skip == 1 {
+        joints.remove(0);
+        for j in joints.iter_mut() {
+            j.parent = j.parent.and_then(|p| p.checked_sub(1));
+        }
+        joints[0].parent = None;
+        for e in end_sites.iter_mut() {
+            e.parent -= 1;
+        }
+    }
+    // Non-root translation channels must be constant.
+    for j in joints.iter_mut().skip(1) {
+        if !j.channels.iter().any(|c| matches!(c, Channel::Pos(_))) {
+            continue;
+        }
+        let (_, p0) = local_transform(j, row(0));
+        let p0 = p0.expect("has position channels");
+        let mut range = 0.0f64;
+        for f in 1..frames {
+            let (_, p) = local_transform(j, row(f));
+            range = range.max(norm(sub(p.expect("has position channels"), p0)));
+        }
+        if range > 1e-5 * (1.0 + norm(p0)) {
+            return Err(MotionError::invalid(
+                file,
+                "CHANNELS",
+                format!(
+                    "joint '{}' translates over time (by up to {range:.4} units); only the root may move",
+                    j.name
+                ),
+            ));
+        }
+        j.offset = p0;
+    }
+    // Units.
+    let bone_sum: f64 = joints.iter().skip(1).map(|j| norm(j.offset)).sum();
+    let unit = match opts.metres_per_unit {
+        Some(u) if u.is_finite() && u > 0.0 => u,
+        Some(u) => return Err(MotionError::invalid(file, "metres_per_unit", format!("{u} is not a positive scale"))),
+        None => detect_unit(bone_sum).ok_or_else(|| {
+            MotionError::invalid(
+                file,
+                "OFFSET",
+                format!("cannot tell the unit from a bone-length sum of {bone_sum:.3}; give the scale explicitly"),
+            )
+        })?,
+    };
+    let names: Vec<String> = joints.iter().map(|j| j.name.clone()).collect();
+    let parents: Vec<Option<usize>> = joints.iter().map(|j| j.parent).collect();
+    let offsets: Vec<Vec3> = joints.iter().map(|j| scale(j.offset, unit)).collect();
+    let end_sites: Vec<EndSite> = end_sites
+        .into_iter()
+        .map(|e| EndSite {
+            parent: e.parent,
+            offset: scale(e.offset, unit),
+        })
+        .collect();
+    let skeleton = Skeleton::new("custom", names, parents, offsets, end_sites).map_err(|e| e.in_file(file))?;
+    let nj = joints.len();
+    let mut rotations = Vec::with_capacity(frames * nj);
+    let mut trans = Vec::with_capacity(frames);
+    for f in 0..frames {
+        let r = row(f);
+        for (k, j) in joints.iter().enumerate() {
+            let (mut q, p) = local_transform(j, r);
+            if k == 0 {
+                let mut p = p.unwrap_or(j.offset);
+                if let Some((rq, rp)) = root_fold {
+                    q = quat_mul(rq, q);
+                    p = add(rp, quat_rotate(rq, p));
+                }
+                trans.push(sub(scale(p, unit), skeleton.offsets[0]));
+            }
+            rotations.push(quat_to_axis_angle(q));
+        }
+    }
+    let layout = BvhLayout {
+        joints: joints.iter().map(|j| (j.name.clone(), j.channels.clone())).collect(),
+        metres_per_unit: unit,
+    };
+    let mut l = labels::from_name(file);
+    if l.is_empty() && file.contains("cmu") {
+        l.insert("corpus".into(), "cmu".into());
+    }
+    let motion = Motion::new(file, fps, skeleton, trans, rotations, l)?;
+    Ok(BvhMotion { motion, layout })
+}
+
+#[derive(Clone, Debug)]
+pub struct BvhWriteOptions<'a> {
+    /// Metres per unit written (0.01 = centimetres, what most tools expect).
+    pub metres_per_unit: f64,
+    /// Channel layout to reproduce where joint names match (from a BVH read).
+    pub layout: Option<&'a BvhLayout>,
+    /// Rotation order for joints the layout does not cover (intrinsic).
+    pub order: EulerOrder,
+    /// Decimal places of every number.
+    pub decimals: usize,
+}
+
+impl Default for BvhWriteOptions<'_> {
+    fn default() -> Self {
+        BvhWriteOptions {
+            metres_per_unit: 0.01,
+            layout: None,
+            order: EulerOrder::intrinsic([Axis::Z, Axis::X, Axis::Y]),
+            decimals: 6,
+        }
+    }
+}
+
+fn fmt_num(out: &mut String, v: f64, decimals: usize) {
+    let v = if v == 0.0 { 0.0 } else { v }; // no "-0.000000"
+    let _ = write!(out, "{v:.decimals$}");
+}
+
+/// Write a motion as BVH text.
+pub fn write_bvh(m: &Motion, opts: &BvhWriteOptions<'_>) -> Result<String, MotionError> {
+    m.validate()?;
+    let u = opts.metres_per_unit;
+    if !(u.is_finite() && u > 0.0) {
+        return Err(MotionError::invalid(&m.name, "metres_per_unit", format!("{u} is not a positive scale")));
+    }
+    let sk = &m.skeleton;
+    let nj = sk.len();
+    let default_rot: Vec<Channel> = opts.order.as_listed().iter().map(|a| Channel::Rot(*a)).collect();
+    // Channels per joint.
+    let mut channels: Vec<Vec<Channel>> = Vec::with_capacity(nj);
+    for j in 0..nj {
+        let from_layout = opts.layout.and_then(|l| l.channels_of(&sk.names[j])).filter(|c| {
+            let rots: Vec<_> = c.iter().filter(|x| matches!(x, Channel::Rot(_))).collect();
+            rots.len() == 3 && (j != 0 || c.iter().filter(|x| matches!(x, Channel::Pos(_))).count() == 3)
+        });
+        channels.push(match from_layout {
+            Some(c) => c.to_vec(),
+            None if j == 0 => {
+                let mut c = vec![Channel::Pos(Axis::X), Channel::Pos(Axis::Y), Channel::Pos(Axis::Z)];
+                c.extend(&default_rot);
+                c
+            }
+            None => default_rot.clone(),
+        });
+    }
+    let mut out = String::with_capacity(64 * nj + m.frames() * nj * 30);
+    out.push_str("HIERARCHY\n");
+    write_joint(&mut out, m, 0, 0, &channels, opts);
+    out.push_str("MOTION\n");
+    let _ = writeln!(out, "Frames: {}", m.frames());
+    let _ = writeln!(out, "Frame Time: {:.9}", 1.0 / m.fps);
+    let mut prev: Vec<Vec<f64>> = vec![Vec::new(); nj];
+    for f in 0..m.frames() {
+        let mut first = true;
+        for j in 0..nj {
+            let q = axis_angle_to_quat(m.rot(f, j));
+            let rot_axes: Vec<Axis> = channels[j]
+                .iter()
+                .filter_map(|c| if let Channel::Rot(a) = c { Some(*a) } else { None })
+                .collect();
+            let order = EulerOrder::intrinsic([rot_axes[0], rot_axes[1], rot_axes[2]]);
+            let mut e: Vec<f64> = quat_to_euler(q, order).iter().map(|v| v.to_degrees()).collect();
+            // Keep each channel continuous with the previous frame.
+            if let Some(p) = prev.get(j).filter(|p| !p.is_empty()) {
+                for (v, pv) in e.iter_mut().zip(p) {
+                    *v += 360.0 * ((pv - *v) / 360.0).round();
+                }
+            }
+            let local = if j == 0 {
+                scale(add(sk.offsets[0], m.trans[f]), 1.0 / u)
+            } else {
+                scale(sk.offsets[j], 1.0 / u)
+            };
+            let mut ri = 0;
+            for c in &channels[j] {
+                if !first {
+                    out.push(' ');
+                }
+                first = false;
+                match c {
+                    Channel::Pos(a) => fmt_num(&mut out, local[a.index()], opts.decimals),
+                    Channel::Rot(_) => {
+                        fmt_num(&mut out, e[ri], opts.decimals);
+                        ri += 1;
+                    }
+                }
+            }
+            prev[j] = std::mem::take(&mut e);
+        }
+        out.push('\n');
+    }
+    Ok(out)
+}
+
+fn write_joint(out: &mut String, m: &Motion, j: usize, depth: usize, channels: &[Vec<Channel>], opts: &BvhWriteOptions<'_>) {
+    let sk = &m.skeleton;
+    let ind = "  ".repeat(depth);
+    let u = opts.metres_per_unit;
+    let kw = if depth == 0 { "ROOT" } else { "JOINT" };
+    let _ = writeln!(out, "{ind}{kw} {}", sk.names[j]);
+    let _ = writeln!(out, "{ind}{{");
+    let off = scale(sk.offsets[j], 1.0 / u);
+    let _ = write!(out, "{ind}  OFFSET ");
+    for (k, v) in off.iter().enumerate() {
+        if k > 0 {
+            out.push(' ');
+        }
+        fmt_num(out, *v, opts.decimals);
+    }
+    out.push('\n');
+    let names: Vec<String> = channels[j].iter().map(|c| c.name()).collect();
+    let _ = writeln!(out, "{ind}  CHANNELS {} {}", names.len(), names.join(" "));
+    let children = sk.children(j);
+    for &c in &children {
+        write_joint(out, m, c, depth + 1, channels, opts);
+    }
+    let mut ends: Vec<Vec3> = sk.end_sites.iter().filter(|e| e.parent == j).map(|e| e.offset).collect();
+    if children.is_empty() && ends.is_empty() {
+        // Every leaf needs an End Site; continue the joint's own bone a little.
+        ends.push(scale(sk.offsets[j], 0.25));
+    }
+    for e in ends {
+        let e = scale(e, 1.0 / u);
+        let _ = writeln!(out, "{ind}  End Site");
+        let _ = writeln!(out, "{ind}  {{");
+        let _ = write!(out, "{ind}    OFFSET ");
+        for (k, v) in e.iter().enumerate() {
+            if k > 0 {
+                out.push(' ');
+            }
+            fmt_num(out, *v, opts.decimals);
+        }
+        out.push('\n');
+        let _ = writeln!(out, "{ind}  }}");
+    }
+    let _ = writeln!(out, "{ind}}}");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TINY: &str = "HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 90 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT LeftUpLeg
+  {
+    OFFSET 10 -5 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    JOINT LeftLeg
+    {
+      OFFSET 0 -45 0
+      CHANNELS 3 Xrotation Yrotation Zrotation
+      End Site
+      {
+        OFFSET 0 -40 0
+      }
+    }
+  }
+  JOINT RightUpLeg
+  {
+    OFFSET -10 -5 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    JOINT RightLeg
+    {
+      OFFSET 0 -45 0
+      CHANNELS 3 Xrotation Yrotation Zrotation
+      End Site
+      {
+        OFFSET 0 -40 0
+      }
+    }
+  }
+  JOINT Spine
+  {
+    OFFSET 0 10 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    JOINT Head
+    {
+      OFFSET 0 60 0
+      CHANNELS 3 Zrotation Xrotation Yrotation
+      End Site
+      {
+        OFFSET 0 15 0
+      }
+    }
+  }
+}
+MOTION
+Frames: 2
+Frame Time: 0.033333
+1 90 2 0 0 0 0 0 0 90 0 0 0 0 0 0 0 0 0 0 0 0 0 0
+1 91 3 10 20 30 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0
+";
+
+    fn read(text: &str) -> Result<BvhMotion, MotionError> {
+        read_bvh("tiny.bvh", text, &BvhReadOptions { metres_per_unit: Some(0.01) })
+    }
+
+    #[test]
+    fn reads_tiny_file_by_hand() {
+        let b = read(TINY).unwrap();
+        let m = &b.motion;
+        assert_eq!(m.frames(), 2);
+        assert_eq!(m.joints(), 7);
+        assert!((m.fps - 30.0003).abs() < 1e-3);
+        let p = m.positions();
+        // Frame 0: root at (0.01, 0.90, 0.02) m; knee bent 90° about x, so
+        // the shin (0, -0.40) points along -z... Rx(90°) maps -y to -z.
+        assert!(norm(sub(p[0], [0.01, 0.90, 0.02])) < 1e-12);
+        let knee = p[2];
+        assert!(norm(sub(knee, [0.11, 0.40, 0.02])) < 1e-12, "{knee:?}");
+    }
+
+    #[test]
+    fn write_then_read_is_exact_to_precision() {
+        let b = read(TINY).unwrap();
+        let text = write_bvh(&b.motion, &BvhWriteOptions { layout: Some(&b.layout), ..Default::default() }).unwrap();
+        let back = read(&text).unwrap().motion;
+        let (a, c) = (b.motion.positions(), back.positions());
+        for (x, y) in a.iter().zip(&c) {
+            assert!(norm(sub(*x, *y)) < 1e-8);
+        }
+        for (x, y) in b.motion.rotations.iter().zip(&back.rotations) {
+            assert!(geodesic_axis_angle(*x, *y) < 1e-7);
+        }
+    }
+
+    #[test]
+    fn bad_files_name_field() {
+        let cases = [
+            ("", "HIERARCHY"),
+            ("HIERARCHY ROOT a { OFFSET 0 0", "OFFSET"),
+            (&TINY.replace("Frames: 2", "Frames: 99999999999"), "Frames"),
+            (&TINY.replace("Frames: 2", "Frames: 3"), "truncated"),
+            (&TINY.replace("Frame Time: 0.033333", "Frame Time: 0"), "Frame Time"),
+            (&TINY.replace("1 91 3", "1 nan 3"), "MOTION"),
+            (&TINY.replace("Zrotation Xrotation Yrotation\n  JOINT LeftUpLeg", "Zrotation Xrotation Wrotation\n  JOINT LeftUpLeg"), "CHANNELS"),
+            (&TINY[..TINY.len() - 30], "truncated"),
+        ];
+        for (text, want) in cases {
+            let e = read(text).err().unwrap_or_else(|| panic!("accepted: {want}")).to_string();
+            assert!(e.contains(want) && e.contains("tiny.bvh"), "{want}: {e}");
+        }
+    }
+}

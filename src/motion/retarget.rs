@@ -1,0 +1,1 @@
+//! Retargeting (placeholder while writing)
