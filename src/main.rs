@@ -1,1 +1,323 @@
-fn main(){}
+//! `choreo`: the command-line front of the library (and, later, the server).
+
+use anyhow::{bail, Context, Result};
+use choreo::motion::io::{self, bvh, Format, ReadOptions};
+use choreo::motion::retarget::{retarget_to_smpl13, JointMap};
+use choreo::motion::rotation::*;
+use choreo::motion::Motion;
+use clap::{Parser, Subcommand, ValueEnum};
+use serde_json::json;
+use std::collections::BTreeMap;
+use std::io::Read;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "choreo",
+    version,
+    about = "Search, transform, generate and classify human motion capture"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq)]
+enum Joints {
+    /// The SMPL 24-joint skeleton.
+    Smpl24,
+    /// The 13 joints of thesis 000 Table A.1 (retargets non-SMPL input).
+    Smpl13,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum Unit {
+    M,
+    Cm,
+    Mm,
+}
+
+impl Unit {
+    fn metres(self) -> f64 {
+        match self {
+            Unit::M => 1.0,
+            Unit::Cm => 0.01,
+            Unit::Mm => 0.001,
+        }
+    }
+}
+
+#[derive(clap::Args, Clone)]
+struct ReadArgs {
+    /// Metres per BVH file unit (detected from the skeleton's size if absent;
+    /// e.g. 0.0254 for inches).
+    #[arg(long, env = "CHOREO_BVH_SCALE")]
+    bvh_scale: Option<f64>,
+}
+
+impl ReadArgs {
+    fn options(&self) -> ReadOptions {
+        ReadOptions {
+            bvh: bvh::BvhReadOptions {
+                metres_per_unit: self.bvh_scale,
+            },
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Print what a motion file holds: format, fps, frames, joints, duration, labels.
+    Inspect {
+        file: PathBuf,
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
+    /// Convert between formats (.bvh or AMASS .npz out), optionally resampled,
+    /// cut, mirrored, root-normalised or reduced/retargeted to 13 joints.
+    Convert {
+        input: PathBuf,
+        output: PathBuf,
+        /// Resample to this frame rate (SLERP rotations, lerp translation).
+        #[arg(long)]
+        fps: Option<f64>,
+        /// Joint set of the output; non-SMPL input is retargeted.
+        #[arg(long, value_enum)]
+        joints: Option<Joints>,
+        /// JSON object mapping SMPL joint names to source joint names, for retargeting.
+        #[arg(long)]
+        joint_map: Option<PathBuf>,
+        /// Mirror left and right.
+        #[arg(long)]
+        mirror: bool,
+        /// Start at the origin facing +z.
+        #[arg(long)]
+        normalize_root: bool,
+        /// Keep frames START:END (after resampling), END exclusive.
+        #[arg(long, value_parser = parse_range)]
+        frames: Option<(usize, usize)>,
+        /// Unit of BVH output.
+        #[arg(long, value_enum, default_value = "cm")]
+        out_unit: Unit,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
+    /// Forward kinematics: joint positions in metres as JSON
+    /// `{joints: [names], fps, positions: [frame][joint][xyz]}`.
+    Positions {
+        file: PathBuf,
+        #[arg(long, value_parser = parse_range)]
+        frames: Option<(usize, usize)>,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
+    /// Internal checks used by the reference scripts.
+    #[command(hide = true)]
+    Dev {
+        #[command(subcommand)]
+        cmd: DevCmd,
+    },
+}
+
+#[derive(Subcommand)]
+enum DevCmd {
+    /// Read `{"quats": [[w,x,y,z]...], "orders": ["ZXY", "xyz", ...]}` on stdin;
+    /// print every conversion as JSON.
+    Rotations,
+}
+
+fn parse_range(s: &str) -> Result<(usize, usize), String> {
+    let (a, b) = s.split_once(':').ok_or("expected START:END")?;
+    let a: usize = a
+        .parse()
+        .map_err(|_| format!("'{a}' is not a frame index"))?;
+    let b: usize = b
+        .parse()
+        .map_err(|_| format!("'{b}' is not a frame index"))?;
+    if a >= b {
+        return Err(format!("{a}:{b} is empty"));
+    }
+    Ok((a, b))
+}
+
+fn main() {
+    let cli = Cli::parse();
+    if let Err(e) = run(cli) {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.cmd {
+        Cmd::Inspect { file, json, read } => inspect(&file, json, &read),
+        Cmd::Convert {
+            input,
+            output,
+            fps,
+            joints,
+            joint_map,
+            mirror,
+            normalize_root,
+            frames,
+            out_unit,
+            read,
+        } => {
+            let loaded = io::read_path(&input, &read.options())?;
+            let layout = loaded.bvh_layout.clone();
+            let mut m = loaded.motion;
+            let mut same_skeleton = true;
+            if let Some(j) = joints {
+                m = to_joints(m, j, joint_map.as_deref())?;
+                same_skeleton = false;
+            }
+            if let Some(f) = fps {
+                m = m.resample(f)?;
+            }
+            if let Some((a, b)) = frames {
+                m = m.cut(a, b.min(m.frames()))?;
+            }
+            if mirror {
+                m = m.mirror()?;
+            }
+            if normalize_root {
+                m = m.normalize_root()?;
+            }
+            let opts = bvh::BvhWriteOptions {
+                metres_per_unit: out_unit.metres(),
+                layout: if same_skeleton { layout.as_ref() } else { None },
+                ..Default::default()
+            };
+            io::write_path(&m, &output, &opts)?;
+            eprintln!(
+                "wrote {} ({} frames at {} fps, {} joints)",
+                output.display(),
+                m.frames(),
+                m.fps,
+                m.joints()
+            );
+            Ok(())
+        }
+        Cmd::Positions { file, frames, read } => {
+            let mut m = io::read_path(&file, &read.options())?.motion;
+            if let Some((a, b)) = frames {
+                m = m.cut(a, b.min(m.frames()))?;
+            }
+            let pos = m.positions();
+            let j = m.joints();
+            let frames: Vec<Vec<Vec3>> = (0..m.frames())
+                .map(|f| pos[f * j..(f + 1) * j].to_vec())
+                .collect();
+            println!(
+                "{}",
+                json!({"joints": m.skeleton.names, "fps": m.fps, "positions": frames})
+            );
+            Ok(())
+        }
+        Cmd::Dev {
+            cmd: DevCmd::Rotations,
+        } => dev_rotations(),
+    }
+}
+
+fn to_joints(m: Motion, j: Joints, joint_map: Option<&std::path::Path>) -> Result<Motion> {
+    let kind = m.skeleton.kind.clone();
+    let m13 = match kind.as_str() {
+        "smpl24" if j == Joints::Smpl24 => return Ok(m),
+        "smpl13" if j == Joints::Smpl13 => return Ok(m),
+        "smpl24" => m.to_smpl13()?,
+        "smpl13" => m,
+        _ => {
+            let overrides: BTreeMap<String, String> = match joint_map {
+                Some(p) => serde_json::from_str(
+                    &std::fs::read_to_string(p)
+                        .with_context(|| format!("{}: cannot read joint map", p.display()))?,
+                )
+                .with_context(|| {
+                    format!(
+                        "{}: expected a JSON object of SMPL name -> source name",
+                        p.display()
+                    )
+                })?,
+                None => BTreeMap::new(),
+            };
+            let map = JointMap::resolve(&m.skeleton, &overrides).map_err(|e| e.in_file(&m.name))?;
+            retarget_to_smpl13(&m, &map)?
+        }
+    };
+    Ok(match j {
+        Joints::Smpl13 => m13,
+        Joints::Smpl24 => m13.smpl13_to_smpl24()?,
+    })
+}
+
+fn inspect(file: &std::path::Path, as_json: bool, read: &ReadArgs) -> Result<()> {
+    let loaded = io::read_path(file, &read.options())?;
+    let m = &loaded.motion;
+    let v = json!({
+        "file": file.display().to_string(),
+        "format": loaded.format.name(),
+        "fps": m.fps,
+        "frames": m.frames(),
+        "joints": m.joints(),
+        "skeleton": m.skeleton.kind,
+        "duration_s": m.duration_s(),
+        "labels": m.labels,
+    });
+    if as_json {
+        println!("{v}");
+    } else {
+        println!("file      {}", file.display());
+        println!("format    {}", loaded.format.name());
+        println!("fps       {}", m.fps);
+        println!("frames    {}", m.frames());
+        println!("joints    {} ({})", m.joints(), m.skeleton.kind);
+        println!("duration  {:.3} s", m.duration_s());
+        for (k, val) in &m.labels {
+            println!("label     {k} = {val}");
+        }
+        if loaded.format == Format::Bvh {
+            if let Some(l) = &loaded.bvh_layout {
+                println!("unit      {} m per file unit", l.metres_per_unit);
+            }
+        }
+    }
+    Ok(())
+}
+
+fn dev_rotations() -> Result<()> {
+    let mut s = String::new();
+    std::io::stdin().read_to_string(&mut s)?;
+    let v: serde_json::Value = serde_json::from_str(&s)?;
+    let quats: Vec<Quat> = serde_json::from_value(v["quats"].clone()).context("quats")?;
+    let orders: Vec<String> = serde_json::from_value(v["orders"].clone()).context("orders")?;
+    if quats.is_empty() {
+        bail!("no quats");
+    }
+    let mut euler = serde_json::Map::new();
+    let mut euler_back = serde_json::Map::new();
+    for o in &orders {
+        let order: EulerOrder = o.parse().map_err(anyhow::Error::msg)?;
+        let e: Vec<Vec3> = quats.iter().map(|q| quat_to_euler(*q, order)).collect();
+        let back: Vec<Quat> = e.iter().map(|a| euler_to_quat(*a, order)).collect();
+        euler.insert(o.clone(), json!(e));
+        euler_back.insert(o.clone(), json!(back));
+    }
+    let mats: Vec<Mat3> = quats.iter().map(|q| quat_to_mat(*q)).collect();
+    let aa: Vec<Vec3> = quats.iter().map(|q| quat_to_axis_angle(*q)).collect();
+    let out = json!({
+        "matrix": mats,
+        "axis_angle": aa,
+        "quat_from_axis_angle": aa.iter().map(|a| axis_angle_to_quat(*a)).collect::<Vec<_>>(),
+        "quat_from_matrix": mats.iter().map(mat_to_quat).collect::<Vec<_>>(),
+        "sixd": mats.iter().map(mat_to_6d).collect::<Vec<_>>(),
+        "matrix_from_sixd": mats.iter().map(|m| sixd_to_mat(&mat_to_6d(m))).collect::<Vec<_>>(),
+        "euler": euler,
+        "quat_from_euler": euler_back,
+        "geodesic_next": quats.windows(2).map(|w| geodesic_quat(w[0], w[1])).collect::<Vec<_>>(),
+    });
+    println!("{out}");
+    Ok(())
+}

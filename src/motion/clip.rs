@@ -99,7 +99,11 @@ impl Motion {
             ));
         }
         if self.frames() == 0 {
-            return Err(MotionError::invalid(file, "frames", "the motion has no frames"));
+            return Err(MotionError::invalid(
+                file,
+                "frames",
+                "the motion has no frames",
+            ));
         }
         if self.frames() > MAX_FRAMES {
             return Err(MotionError::invalid(
@@ -121,14 +125,22 @@ impl Motion {
                 ),
             ));
         }
-        if let Some(i) = self.trans.iter().position(|t| t.iter().any(|v| !v.is_finite())) {
+        if let Some(i) = self
+            .trans
+            .iter()
+            .position(|t| t.iter().any(|v| !v.is_finite()))
+        {
             return Err(MotionError::invalid(
                 file,
                 "trans",
                 format!("frame {i} has a NaN or infinite root translation"),
             ));
         }
-        if let Some(i) = self.rotations.iter().position(|r| r.iter().any(|v| !v.is_finite())) {
+        if let Some(i) = self
+            .rotations
+            .iter()
+            .position(|r| r.iter().any(|v| !v.is_finite()))
+        {
             let j = self.joints();
             return Err(MotionError::invalid(
                 file,
@@ -325,7 +337,11 @@ impl Motion {
     /// identity rotation.
     pub fn smpl13_to_smpl24(&self) -> Result<Motion, MotionError> {
         if self.skeleton.kind != "smpl13" {
-            return Err(MotionError::invalid(&self.name, "skeleton", "expected an smpl13 motion"));
+            return Err(MotionError::invalid(
+                &self.name,
+                "skeleton",
+                "expected an smpl13 motion",
+            ));
         }
         let mut rots = vec![[0.0; 3]; self.frames() * 24];
         for f in 0..self.frames() {
@@ -374,6 +390,22 @@ impl Motion {
             r[axis] = -r[axis];
             r
         };
+        // Local reflection is only the physical mirror when each joint's rest
+        // offset reflects onto its partner's (SMPL: yes; rigs whose right side
+        // uses turned joint frames, like Bandai Namco's: no).
+        for (a, &b) in map.iter().enumerate() {
+            let (oa, ob) = (self.skeleton.offsets[a], self.skeleton.offsets[b]);
+            if a != 0 && norm(sub(reflect(oa), ob)) > 0.2 * norm(oa) + 0.01 {
+                return Err(MotionError::invalid(
+                    &self.name,
+                    "skeleton",
+                    format!(
+                        "rest pose is not mirror-symmetric ('{}' and '{}' have unmatched offsets); retarget to smpl13 first",
+                        self.skeleton.names[a], self.skeleton.names[b]
+                    ),
+                ));
+            }
+        }
         // Reflection M: a rotation R becomes M R M, i.e. axis-angle v -> -M v.
         let reflect_rot = |v: Vec3| scale(reflect(v), -1.0);
         let j = self.joints();
@@ -469,7 +501,15 @@ pub(crate) mod tests {
     #[test]
     fn fk_rest_pose_is_sum_of_offsets() {
         let sk = Skeleton::smpl24();
-        let m = Motion::new("rest", 30.0, sk.clone(), vec![[0.0; 3]], vec![[0.0; 3]; 24], Labels::new()).unwrap();
+        let m = Motion::new(
+            "rest",
+            30.0,
+            sk.clone(),
+            vec![[0.0; 3]],
+            vec![[0.0; 3]; 24],
+            Labels::new(),
+        )
+        .unwrap();
         let pos = m.positions();
         let rest = Motion::rest_positions(&sk);
         for k in 0..24 {
@@ -486,7 +526,15 @@ pub(crate) mod tests {
         let sk = Skeleton::smpl24();
         let mut rots = vec![[0.0; 3]; 24];
         rots[18] = [0.0, std::f64::consts::FRAC_PI_2, 0.0];
-        let m = Motion::new("bend", 30.0, sk.clone(), vec![[0.0; 3]], rots, Labels::new()).unwrap();
+        let m = Motion::new(
+            "bend",
+            30.0,
+            sk.clone(),
+            vec![[0.0; 3]],
+            rots,
+            Labels::new(),
+        )
+        .unwrap();
         let pos = m.positions();
         let o = sk.offsets[20];
         let d = sub(pos[20], pos[18]);
@@ -523,7 +571,11 @@ pub(crate) mod tests {
         let up = down.resample(60.0).unwrap();
         assert_eq!(up.frames(), 121);
         let (a, b) = (m.positions(), up.positions());
-        let max = a.iter().zip(&b).map(|(x, y)| norm(sub(*x, *y))).fold(0.0, f64::max);
+        let max = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| norm(sub(*x, *y)))
+            .fold(0.0, f64::max);
         assert!(max < 0.01, "max position error {max} m");
     }
 

@@ -32,7 +32,11 @@ pub fn aist_tempo_bpm(music: &str) -> Option<u32> {
     if k > 5 || !AIST_GENRES.iter().any(|g| g.0 == genre) {
         return None;
     }
-    Some(if genre == "HO" { 110 + 5 * k } else { 80 + 10 * k })
+    Some(if genre == "HO" {
+        110 + 5 * k
+    } else {
+        80 + 10 * k
+    })
 }
 
 /// The file stem (no folders, no extension).

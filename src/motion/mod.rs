@@ -32,7 +32,11 @@ pub enum MotionError {
 }
 
 impl MotionError {
-    pub fn invalid(file: impl Into<String>, field: impl Into<String>, reason: impl Into<String>) -> Self {
+    pub fn invalid(
+        file: impl Into<String>,
+        field: impl Into<String>,
+        reason: impl Into<String>,
+    ) -> Self {
         MotionError::Invalid {
             file: file.into(),
             field: field.into(),

@@ -166,7 +166,11 @@ pub fn axis_angle_to_quat(aa: Vec3) -> Quat {
 /// Axis-angle with angle in `[0, π]`.
 pub fn quat_to_axis_angle(q: Quat) -> Vec3 {
     let q = quat_normalize(q);
-    let q = if q[0] < 0.0 { [-q[0], -q[1], -q[2], -q[3]] } else { q };
+    let q = if q[0] < 0.0 {
+        [-q[0], -q[1], -q[2], -q[3]]
+    } else {
+        q
+    };
     let sv = (q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
     if sv < 1e-12 {
         return [2.0 * q[1], 2.0 * q[2], 2.0 * q[3]];
@@ -501,7 +505,11 @@ mod tests {
         let v = quat_rotate(q, [1.0, 0.0, 0.0]);
         assert!(close(&v, &[0.0, 1.0, 0.0], 1e-12), "{v:?}");
         let m = quat_to_mat(q);
-        assert!(close(&mat_vec(&m, [1.0, 0.0, 0.0]), &[0.0, 1.0, 0.0], 1e-12));
+        assert!(close(
+            &mat_vec(&m, [1.0, 0.0, 0.0]),
+            &[0.0, 1.0, 0.0],
+            1e-12
+        ));
     }
 
     #[test]

@@ -11,7 +11,11 @@ use crate::motion::MotionError;
 /// AIST++ motions are captured at 60 fps.
 pub const AIST_FPS: f64 = 60.0;
 
-fn array<'a>(file: &str, d: &'a [(Value, Value)], key: &str) -> Result<&'a super::npy::NdArray, MotionError> {
+fn array<'a>(
+    file: &str,
+    d: &'a [(Value, Value)],
+    key: &str,
+) -> Result<&'a super::npy::NdArray, MotionError> {
     match dict_get(d, key) {
         Some(Value::Array(a)) => Ok(a),
         Some(_) => Err(MotionError::invalid(file, key, "is not a numpy array")),
@@ -27,14 +31,26 @@ pub fn read_aist_pickle(file: &str, bytes: &[u8]) -> Result<Motion, MotionError>
         .ok_or_else(|| MotionError::invalid(file, "pickle", "top-level object is not a dict"))?;
     let poses = array(file, d, "smpl_poses")?;
     let trans = array(file, d, "smpl_trans")?;
-    let (n, w) = poses
-        .dims2()
-        .ok_or_else(|| MotionError::invalid(file, "smpl_poses", format!("shape {:?} is not 2-D", poses.shape)))?;
+    let (n, w) = poses.dims2().ok_or_else(|| {
+        MotionError::invalid(
+            file,
+            "smpl_poses",
+            format!("shape {:?} is not 2-D", poses.shape),
+        )
+    })?;
     if w != 72 {
-        return Err(MotionError::invalid(file, "smpl_poses", format!("has {w} columns, expected 72 (24 joints x 3)")));
+        return Err(MotionError::invalid(
+            file,
+            "smpl_poses",
+            format!("has {w} columns, expected 72 (24 joints x 3)"),
+        ));
     }
     if n == 0 || n > MAX_FRAMES {
-        return Err(MotionError::invalid(file, "smpl_poses", format!("{n} frames is not in 1..={MAX_FRAMES}")));
+        return Err(MotionError::invalid(
+            file,
+            "smpl_poses",
+            format!("{n} frames is not in 1..={MAX_FRAMES}"),
+        ));
     }
     if trans.dims2() != Some((n, 3)) {
         return Err(MotionError::invalid(
@@ -44,18 +60,42 @@ pub fn read_aist_pickle(file: &str, bytes: &[u8]) -> Result<Motion, MotionError>
         ));
     }
     let scaling = match dict_get(d, "smpl_scaling") {
-        Some(Value::Array(a)) => a
-            .scalar()
-            .ok_or_else(|| MotionError::invalid(file, "smpl_scaling", format!("shape {:?} is not one value", a.shape)))?,
+        Some(Value::Array(a)) => a.scalar().ok_or_else(|| {
+            MotionError::invalid(
+                file,
+                "smpl_scaling",
+                format!("shape {:?} is not one value", a.shape),
+            )
+        })?,
         Some(Value::Float(f)) => *f,
         Some(Value::Int(i)) => *i as f64,
-        Some(_) => return Err(MotionError::invalid(file, "smpl_scaling", "is not a number")),
-        None => return Err(MotionError::invalid(file, "smpl_scaling", "missing from the pickle")),
+        Some(_) => {
+            return Err(MotionError::invalid(
+                file,
+                "smpl_scaling",
+                "is not a number",
+            ))
+        }
+        None => {
+            return Err(MotionError::invalid(
+                file,
+                "smpl_scaling",
+                "missing from the pickle",
+            ))
+        }
     };
     if !(scaling.is_finite() && scaling > 0.0) {
-        return Err(MotionError::invalid(file, "smpl_scaling", format!("{scaling} is not a positive scale")));
+        return Err(MotionError::invalid(
+            file,
+            "smpl_scaling",
+            format!("{scaling} is not a positive scale"),
+        ));
     }
-    let rotations = poses.data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let rotations = poses
+        .data
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
     let trans = trans
         .data
         .chunks_exact(3)

@@ -23,13 +23,23 @@ fn z_up_to_y_up() -> Quat {
     axis_angle_to_quat([-std::f64::consts::FRAC_PI_2, 0.0, 0.0])
 }
 
-fn entry(file: &str, zip: &mut zip::ZipArchive<Cursor<&[u8]>>, names: &[&str]) -> Result<Option<NdArray>, MotionError> {
+fn entry(
+    file: &str,
+    zip: &mut zip::ZipArchive<Cursor<&[u8]>>,
+    names: &[&str],
+) -> Result<Option<NdArray>, MotionError> {
     for name in names {
         let fname = format!("{name}.npy");
         let mut f = match zip.by_name(&fname) {
             Ok(f) => f,
             Err(zip::result::ZipError::FileNotFound) => continue,
-            Err(e) => return Err(MotionError::invalid(file, *name, format!("cannot open archive entry: {e}"))),
+            Err(e) => {
+                return Err(MotionError::invalid(
+                    file,
+                    *name,
+                    format!("cannot open archive entry: {e}"),
+                ))
+            }
         };
         let mut buf = Vec::new();
         (&mut f)
@@ -39,16 +49,21 @@ fn entry(file: &str, zip: &mut zip::ZipArchive<Cursor<&[u8]>>, names: &[&str]) -
         if buf.len() as u64 > MAX_ENTRY_BYTES {
             return Err(MotionError::invalid(file, *name, "array larger than 1 GiB"));
         }
-        return parse_npy(&buf).map(Some).map_err(|r| MotionError::invalid(file, *name, r));
+        return parse_npy(&buf)
+            .map(Some)
+            .map_err(|r| MotionError::invalid(file, *name, r));
     }
     Ok(None)
 }
 
 pub fn read_amass_npz(file: &str, bytes: &[u8]) -> Result<Motion, MotionError> {
-    let mut zip = zip::ZipArchive::new(Cursor::new(bytes))
-        .map_err(|e| MotionError::invalid(file, "npz", format!("not a readable zip archive: {e}")))?;
-    let poses = entry(file, &mut zip, &["poses"])?.ok_or_else(|| MotionError::invalid(file, "poses", "missing from the archive"))?;
-    let trans = entry(file, &mut zip, &["trans"])?.ok_or_else(|| MotionError::invalid(file, "trans", "missing from the archive"))?;
+    let mut zip = zip::ZipArchive::new(Cursor::new(bytes)).map_err(|e| {
+        MotionError::invalid(file, "npz", format!("not a readable zip archive: {e}"))
+    })?;
+    let poses = entry(file, &mut zip, &["poses"])?
+        .ok_or_else(|| MotionError::invalid(file, "poses", "missing from the archive"))?;
+    let trans = entry(file, &mut zip, &["trans"])?
+        .ok_or_else(|| MotionError::invalid(file, "trans", "missing from the archive"))?;
     let fps = entry(file, &mut zip, &["mocap_framerate", "mocap_frame_rate"])?
         .ok_or_else(|| MotionError::invalid(file, "mocap_framerate", "missing from the archive"))?
         .scalar()
@@ -56,15 +71,29 @@ pub fn read_amass_npz(file: &str, bytes: &[u8]) -> Result<Motion, MotionError> {
     let (n, w) = poses
         .dims2()
         .filter(|_| poses.shape.len() == 2)
-        .ok_or_else(|| MotionError::invalid(file, "poses", format!("shape {:?} is not 2-D", poses.shape)))?;
+        .ok_or_else(|| {
+            MotionError::invalid(file, "poses", format!("shape {:?} is not 2-D", poses.shape))
+        })?;
     if w < 66 {
-        return Err(MotionError::invalid(file, "poses", format!("has {w} columns, needs at least 66 (22 body joints)")));
+        return Err(MotionError::invalid(
+            file,
+            "poses",
+            format!("has {w} columns, needs at least 66 (22 body joints)"),
+        ));
     }
     if n == 0 || n > MAX_FRAMES {
-        return Err(MotionError::invalid(file, "poses", format!("{n} frames is not in 1..={MAX_FRAMES}")));
+        return Err(MotionError::invalid(
+            file,
+            "poses",
+            format!("{n} frames is not in 1..={MAX_FRAMES}"),
+        ));
     }
     if trans.dims2() != Some((n, 3)) || trans.shape.len() != 2 {
-        return Err(MotionError::invalid(file, "trans", format!("shape {:?} does not match {n} frames x 3", trans.shape)));
+        return Err(MotionError::invalid(
+            file,
+            "trans",
+            format!("shape {:?} does not match {n} frames x 3", trans.shape),
+        ));
     }
     let sk = Skeleton::smpl24();
     let o0 = sk.offsets[0];
@@ -79,8 +108,13 @@ pub fn read_amass_npz(file: &str, bytes: &[u8]) -> Result<Motion, MotionError> {
         for j in 0..body {
             rotations[f * 24 + j] = [row[3 * j], row[3 * j + 1], row[3 * j + 2]];
         }
-        rotations[f * 24] = quat_to_axis_angle(quat_mul(turn, axis_angle_to_quat(rotations[f * 24])));
-        let t = [trans.data[3 * f], trans.data[3 * f + 1], trans.data[3 * f + 2]];
+        rotations[f * 24] =
+            quat_to_axis_angle(quat_mul(turn, axis_angle_to_quat(rotations[f * 24])));
+        let t = [
+            trans.data[3 * f],
+            trans.data[3 * f + 1],
+            trans.data[3 * f + 2],
+        ];
         // Pelvis world position p = o0 + t turns with the world.
         out_trans.push(sub(quat_rotate(turn, add(o0, t)), o0));
     }
@@ -93,7 +127,11 @@ pub fn read_amass_npz(file: &str, bytes: &[u8]) -> Result<Motion, MotionError> {
 /// hands at rest, `trans`, `mocap_framerate`, z up).
 pub fn write_amass_npz(m: &Motion) -> Result<Vec<u8>, MotionError> {
     if m.skeleton.kind != "smpl24" {
-        return Err(MotionError::invalid(&m.name, "skeleton", "AMASS output needs an SMPL-24 motion"));
+        return Err(MotionError::invalid(
+            &m.name,
+            "skeleton",
+            "AMASS output needs an SMPL-24 motion",
+        ));
     }
     let n = m.frames();
     let back = quat_conj(z_up_to_y_up());
@@ -112,20 +150,40 @@ pub fn write_amass_npz(m: &Motion) -> Result<Vec<u8>, MotionError> {
         trans.extend_from_slice(&t);
     }
     let arrays = [
-        ("poses.npy", NdArray { shape: vec![n, 156], data: poses }),
-        ("trans.npy", NdArray { shape: vec![n, 3], data: trans }),
-        ("mocap_framerate.npy", NdArray { shape: vec![], data: vec![m.fps] }),
+        (
+            "poses.npy",
+            NdArray {
+                shape: vec![n, 156],
+                data: poses,
+            },
+        ),
+        (
+            "trans.npy",
+            NdArray {
+                shape: vec![n, 3],
+                data: trans,
+            },
+        ),
+        (
+            "mocap_framerate.npy",
+            NdArray {
+                shape: vec![],
+                data: vec![m.fps],
+            },
+        ),
     ];
     let mut out = Cursor::new(Vec::new());
     {
         let mut zw = zip::ZipWriter::new(&mut out);
-        let opts = zip::write::SimpleFileOptions::default().compression_method(zip::CompressionMethod::Deflated);
+        let opts = zip::write::SimpleFileOptions::default()
+            .compression_method(zip::CompressionMethod::Deflated);
         for (name, a) in arrays {
             zw.start_file(name, opts)
                 .and_then(|_| zw.write_all(&a.to_npy(false)).map_err(Into::into))
                 .map_err(|e| MotionError::invalid(&m.name, "npz", e.to_string()))?;
         }
-        zw.finish().map_err(|e| MotionError::invalid(&m.name, "npz", e.to_string()))?;
+        zw.finish()
+            .map_err(|e| MotionError::invalid(&m.name, "npz", e.to_string()))?;
     }
     Ok(out.into_inner())
 }

@@ -5,9 +5,11 @@
 //!   `Zrotation Xrotation Yrotation` is `R = Rz Rx Ry` (degrees in the file).
 //! - A joint with position channels takes them as its local translation in
 //!   place of its `OFFSET`.
-//! - A static root with a single child that carries the translation (as in
-//!   the Bandai Namco takes, whose `joint_Root` never moves and whose `Hips`
-//!   carries 6 channels) is folded away: the child becomes the root.
+//! - A root whose single child carries its own translation (as in the Bandai
+//!   Namco takes: `joint_Root` carries the travel, `Hips` the sway) is folded
+//!   away: the child becomes the root, the two transforms composed per frame.
+//! - A frame time within 0.01 % of a whole frame rate (0.0333333 s) is read as
+//!   that rate (30 fps).
 //! - Any other joint's position channels must be constant (they become its
 //!   offset): choreo's motion model is root translation + joint rotations.
 //! - Units become metres: by `BvhReadOptions::metres_per_unit`, or detected
@@ -62,7 +64,10 @@ pub struct BvhLayout {
 
 impl BvhLayout {
     fn channels_of(&self, name: &str) -> Option<&[Channel]> {
-        self.joints.iter().find(|(n, _)| n == name).map(|(_, c)| c.as_slice())
+        self.joints
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, c)| c.as_slice())
     }
 }
 
@@ -106,25 +111,33 @@ struct Tokens<'a> {
 
 impl<'a> Tokens<'a> {
     fn next(&mut self, what: &str) -> Result<&'a str, MotionError> {
-        self.it
-            .next()
-            .ok_or_else(|| MotionError::invalid(self.file, what, "file ends early (truncated hierarchy)"))
+        self.it.next().ok_or_else(|| {
+            MotionError::invalid(self.file, what, "file ends early (truncated hierarchy)")
+        })
     }
     fn expect(&mut self, want: &str) -> Result<(), MotionError> {
         let t = self.next(want)?;
         if t.eq_ignore_ascii_case(want) {
             Ok(())
         } else {
-            Err(MotionError::invalid(self.file, want, format!("expected '{want}', found '{t}'")))
+            Err(MotionError::invalid(
+                self.file,
+                want,
+                format!("expected '{want}', found '{t}'"),
+            ))
         }
     }
     fn num(&mut self, field: &str) -> Result<f64, MotionError> {
         let t = self.next(field)?;
-        let v: f64 = t
-            .parse()
-            .map_err(|_| MotionError::invalid(self.file, field, format!("'{t}' is not a number")))?;
+        let v: f64 = t.parse().map_err(|_| {
+            MotionError::invalid(self.file, field, format!("'{t}' is not a number"))
+        })?;
         if !v.is_finite() {
-            return Err(MotionError::invalid(self.file, field, format!("'{t}' is not finite")));
+            return Err(MotionError::invalid(
+                self.file,
+                field,
+                format!("'{t}' is not finite"),
+            ));
         }
         Ok(v)
     }
@@ -149,7 +162,11 @@ pub fn read_bvh(file: &str, text: &str, opts: &BvhReadOptions) -> Result<BvhMoti
     let mut n_channels = 0usize;
     let first = tk.next("ROOT")?;
     if !first.eq_ignore_ascii_case("ROOT") {
-        return Err(MotionError::invalid(file, "ROOT", format!("expected 'ROOT', found '{first}'")));
+        return Err(MotionError::invalid(
+            file,
+            "ROOT",
+            format!("expected 'ROOT', found '{first}'"),
+        ));
     }
     let mut pending: Option<(String, bool)> = Some((read_name(&mut tk)?, false));
     loop {
@@ -159,36 +176,65 @@ pub fn read_bvh(file: &str, text: &str, opts: &BvhReadOptions) -> Result<BvhMoti
             let offset = [tk.num("OFFSET")?, tk.num("OFFSET")?, tk.num("OFFSET")?];
             let parent = stack.last().copied().flatten();
             if is_end {
-                let parent = parent.ok_or_else(|| MotionError::invalid(file, "End Site", "outside any joint"))?;
+                let parent = parent
+                    .ok_or_else(|| MotionError::invalid(file, "End Site", "outside any joint"))?;
                 end_sites.push(EndSite { parent, offset });
                 stack.push(None);
             } else {
                 if joints.len() >= MAX_JOINTS {
-                    return Err(MotionError::invalid(file, "JOINT", format!("more than {MAX_JOINTS} joints")));
+                    return Err(MotionError::invalid(
+                        file,
+                        "JOINT",
+                        format!("more than {MAX_JOINTS} joints"),
+                    ));
                 }
                 if stack.last().is_some_and(|s| s.is_none()) {
-                    return Err(MotionError::invalid(file, "JOINT", format!("joint '{name}' inside an End Site")));
+                    return Err(MotionError::invalid(
+                        file,
+                        "JOINT",
+                        format!("joint '{name}' inside an End Site"),
+                    ));
                 }
                 let mut channels = Vec::new();
-                if tk.it.peek().is_some_and(|t| t.eq_ignore_ascii_case("CHANNELS")) {
+                if tk
+                    .it
+                    .peek()
+                    .is_some_and(|t| t.eq_ignore_ascii_case("CHANNELS"))
+                {
                     tk.next("CHANNELS")?;
                     let n = tk.num("CHANNELS")?;
                     if !(0.0..=6.0).contains(&n) || n.fract() != 0.0 {
-                        return Err(MotionError::invalid(file, "CHANNELS", format!("joint '{name}': {n} is not a channel count in 0..=6")));
+                        return Err(MotionError::invalid(
+                            file,
+                            "CHANNELS",
+                            format!("joint '{name}': {n} is not a channel count in 0..=6"),
+                        ));
                     }
                     for _ in 0..n as usize {
                         let c = tk.next("CHANNELS")?;
                         channels.push(Channel::parse(c).ok_or_else(|| {
-                            MotionError::invalid(file, "CHANNELS", format!("joint '{name}': unknown channel '{c}'"))
+                            MotionError::invalid(
+                                file,
+                                "CHANNELS",
+                                format!("joint '{name}': unknown channel '{c}'"),
+                            )
                         })?);
                     }
                     let mut seen = std::collections::HashSet::new();
                     if !channels.iter().all(|c| seen.insert(*c)) {
-                        return Err(MotionError::invalid(file, "CHANNELS", format!("joint '{name}' repeats a channel")));
+                        return Err(MotionError::invalid(
+                            file,
+                            "CHANNELS",
+                            format!("joint '{name}' repeats a channel"),
+                        ));
                     }
                 }
                 if joints.iter().any(|j| j.name == name) {
-                    return Err(MotionError::invalid(file, "JOINT", format!("joint name '{name}' appears twice")));
+                    return Err(MotionError::invalid(
+                        file,
+                        "JOINT",
+                        format!("joint name '{name}' appears twice"),
+                    ));
                 }
                 joints.push(RawJoint {
                     name,
@@ -201,12 +247,18 @@ pub fn read_bvh(file: &str, text: &str, opts: &BvhReadOptions) -> Result<BvhMoti
                 stack.push(Some(joints.len() - 1));
             }
             if stack.len() > 256 {
-                return Err(MotionError::invalid(file, "HIERARCHY", "nesting deeper than 256"));
+                return Err(MotionError::invalid(
+                    file,
+                    "HIERARCHY",
+                    "nesting deeper than 256",
+                ));
             }
         }
         let t = tk.next("HIERARCHY")?;
         if t == "}" {
-            stack.pop().ok_or_else(|| MotionError::invalid(file, "HIERARCHY", "unbalanced '}'"))?;
+            stack
+                .pop()
+                .ok_or_else(|| MotionError::invalid(file, "HIERARCHY", "unbalanced '}'"))?;
             if stack.is_empty() {
                 break;
             }
@@ -216,7 +268,11 @@ pub fn read_bvh(file: &str, text: &str, opts: &BvhReadOptions) -> Result<BvhMoti
             tk.expect("Site")?;
             pending = Some(("End Site".into(), true));
         } else {
-            return Err(MotionError::invalid(file, "HIERARCHY", format!("unexpected token '{t}'")));
+            return Err(MotionError::invalid(
+                file,
+                "HIERARCHY",
+                format!("unexpected token '{t}'"),
+            ));
         }
     }
     // MOTION section.
@@ -225,19 +281,32 @@ pub fn read_bvh(file: &str, text: &str, opts: &BvhReadOptions) -> Result<BvhMoti
     let frames_f = if t.eq_ignore_ascii_case("Frames:") {
         tk.num("Frames")?
     } else if let Some(v) = t.strip_prefix("Frames:") {
-        v.parse().map_err(|_| MotionError::invalid(file, "Frames", format!("'{v}' is not a number")))?
+        v.parse()
+            .map_err(|_| MotionError::invalid(file, "Frames", format!("'{v}' is not a number")))?
     } else {
-        return Err(MotionError::invalid(file, "Frames", format!("expected 'Frames:', found '{t}'")));
+        return Err(MotionError::invalid(
+            file,
+            "Frames",
+            format!("expected 'Frames:', found '{t}'"),
+        ));
     };
     if !(frames_f >= 1.0 && frames_f <= MAX_FRAMES as f64 && frames_f.fract() == 0.0) {
-        return Err(MotionError::invalid(file, "Frames", format!("{frames_f} is not a frame count in 1..={MAX_FRAMES}")));
+        return Err(MotionError::invalid(
+            file,
+            "Frames",
+            format!("{frames_f} is not a frame count in 1..={MAX_FRAMES}"),
+        ));
     }
     let frames = frames_f as usize;
     tk.expect("Frame")?;
     tk.expect("Time:")?;
     let dt = tk.num("Frame Time")?;
     if !(dt > 0.0 && dt <= 10.0) {
-        return Err(MotionError::invalid(file, "Frame Time", format!("{dt} s is not a frame time in (0, 10]")));
+        return Err(MotionError::invalid(
+            file,
+            "Frame Time",
+            format!("{dt} s is not a frame time in (0, 10]"),
+        ));
     }
     let expected = frames
         .checked_mul(n_channels)
@@ -246,17 +315,31 @@ pub fn read_bvh(file: &str, text: &str, opts: &BvhReadOptions) -> Result<BvhMoti
     let mut values = Vec::with_capacity(expected.min(text.len() / 2 + 1));
     for t in tk.it.by_ref() {
         if values.len() == expected {
-            return Err(MotionError::invalid(file, "MOTION", format!("more values than {frames} frames x {n_channels} channels")));
+            return Err(MotionError::invalid(
+                file,
+                "MOTION",
+                format!("more values than {frames} frames x {n_channels} channels"),
+            ));
         }
         let v: f64 = t.parse().map_err(|_| {
             MotionError::invalid(
                 file,
                 "MOTION",
-                format!("frame {}: '{t}' is not a number", values.len() / n_channels.max(1)),
+                format!(
+                    "frame {}: '{t}' is not a number",
+                    values.len() / n_channels.max(1)
+                ),
             )
         })?;
         if !v.is_finite() {
-            return Err(MotionError::invalid(file, "MOTION", format!("frame {}: '{t}' is not finite", values.len() / n_channels.max(1))));
+            return Err(MotionError::invalid(
+                file,
+                "MOTION",
+                format!(
+                    "frame {}: '{t}' is not finite",
+                    values.len() / n_channels.max(1)
+                ),
+            ));
         }
         values.push(v);
     }
@@ -270,7 +353,13 @@ pub fn read_bvh(file: &str, text: &str, opts: &BvhReadOptions) -> Result<BvhMoti
             ),
         ));
     }
-    build_motion(file, joints, end_sites, &values, frames, 1.0 / dt, opts)
+    let fps = 1.0 / dt;
+    let fps = if (fps - fps.round()).abs() < 1e-4 * fps {
+        fps.round()
+    } else {
+        fps
+    };
+    build_motion(file, joints, end_sites, &values, frames, fps, opts)
 }
 
 fn read_name(tk: &mut Tokens<'_>) -> Result<String, MotionError> {
@@ -278,7 +367,11 @@ fn read_name(tk: &mut Tokens<'_>) -> Result<String, MotionError> {
     while tk.it.peek().is_some_and(|t| *t != "{") {
         parts.push(tk.next("JOINT")?);
         if parts.len() > 16 {
-            return Err(MotionError::invalid(tk.file, "JOINT", "joint name runs on without '{'"));
+            return Err(MotionError::invalid(
+                tk.file,
+                "JOINT",
+                "joint name runs on without '{'",
+            ));
         }
     }
     Ok(parts.join(" "))
@@ -314,21 +407,26 @@ fn build_motion(
 ) -> Result<BvhMotion, MotionError> {
     let nc = values.len() / frames;
     let row = |f: usize| &values[f * nc..(f + 1) * nc];
-    // Fold a static root with one child joint that carries its own translation.
-    let mut root_fold: Option<(Quat, Vec3)> = None;
-    let root_children: Vec<usize> = (1..joints.len()).filter(|&c| joints[c].parent == Some(0)).collect();
-    if root_children.len() == 1 && !end_sites.iter().any(|e| e.parent == 0) {
-        let child = root_children[0];
-        let child_has_pos = joints[child].channels.iter().any(|c| matches!(c, Channel::Pos(_)));
-        let r = &joints[0];
-        let static_root = (0..frames).all(|f| {
-            (0..r.channels.len()).all(|k| (row(f)[r.first + k] - row(0)[r.first + k]).abs() < 1e-9)
-        });
-        if child_has_pos && static_root {
-            let (q, p) = local_transform(&joints[0], row(0));
-            root_fold = Some((q, p.unwrap_or(joints[0].offset)));
-        }
-    }
+    // Fold a root whose only child carries its own translation (Bandai's
+    // `joint_Root` → `Hips`): the child becomes the root, with the old root's
+    // per-frame transform composed into it.
+    let root_children: Vec<usize> = (1..joints.len())
+        .filter(|&c| joints[c].parent == Some(0))
+        .collect();
+    let fold_root = root_children.len() == 1
+        && !end_sites.iter().any(|e| e.parent == 0)
+        && joints[root_children[0]]
+            .channels
+            .iter()
+            .any(|c| matches!(c, Channel::Pos(_)));
+    let root_fold: Option<Vec<(Quat, Vec3)>> = fold_root.then(|| {
+        (0..frames)
+            .map(|f| {
+                let (q, p) = local_transform(&joints[0], row(f));
+                (q, p.unwrap_or(joints[0].offset))
+            })
+            .collect()
+    });
     let skip = usize::from(root_fold.is_some());
     if skip == 1 {
         joints.remove(0);
@@ -387,7 +485,8 @@ fn build_motion(
             offset: scale(e.offset, unit),
         })
         .collect();
-    let skeleton = Skeleton::new("custom", names, parents, offsets, end_sites).map_err(|e| e.in_file(file))?;
+    let skeleton =
+        Skeleton::new("custom", names, parents, offsets, end_sites).map_err(|e| e.in_file(file))?;
     let nj = joints.len();
     let mut rotations = Vec::with_capacity(frames * nj);
     let mut trans = Vec::with_capacity(frames);
@@ -397,7 +496,8 @@ fn build_motion(
             let (mut q, p) = local_transform(j, r);
             if k == 0 {
                 let mut p = p.unwrap_or(j.offset);
-                if let Some((rq, rp)) = root_fold {
+                if let Some(fold) = &root_fold {
+                    let (rq, rp) = fold[f];
                     q = quat_mul(rq, q);
                     p = add(rp, quat_rotate(rq, p));
                 }
@@ -407,7 +507,10 @@ fn build_motion(
         }
     }
     let layout = BvhLayout {
-        joints: joints.iter().map(|j| (j.name.clone(), j.channels.clone())).collect(),
+        joints: joints
+            .iter()
+            .map(|j| (j.name.clone(), j.channels.clone()))
+            .collect(),
         metres_per_unit: unit,
     };
     let mut l = labels::from_name(file);
@@ -451,22 +554,39 @@ pub fn write_bvh(m: &Motion, opts: &BvhWriteOptions<'_>) -> Result<String, Motio
     m.validate()?;
     let u = opts.metres_per_unit;
     if !(u.is_finite() && u > 0.0) {
-        return Err(MotionError::invalid(&m.name, "metres_per_unit", format!("{u} is not a positive scale")));
+        return Err(MotionError::invalid(
+            &m.name,
+            "metres_per_unit",
+            format!("{u} is not a positive scale"),
+        ));
     }
     let sk = &m.skeleton;
     let nj = sk.len();
-    let default_rot: Vec<Channel> = opts.order.as_listed().iter().map(|a| Channel::Rot(*a)).collect();
+    let default_rot: Vec<Channel> = opts
+        .order
+        .as_listed()
+        .iter()
+        .map(|a| Channel::Rot(*a))
+        .collect();
     // Channels per joint.
     let mut channels: Vec<Vec<Channel>> = Vec::with_capacity(nj);
     for j in 0..nj {
-        let from_layout = opts.layout.and_then(|l| l.channels_of(&sk.names[j])).filter(|c| {
-            let rots: Vec<_> = c.iter().filter(|x| matches!(x, Channel::Rot(_))).collect();
-            rots.len() == 3 && (j != 0 || c.iter().filter(|x| matches!(x, Channel::Pos(_))).count() == 3)
-        });
+        let from_layout = opts
+            .layout
+            .and_then(|l| l.channels_of(&sk.names[j]))
+            .filter(|c| {
+                let rots: Vec<_> = c.iter().filter(|x| matches!(x, Channel::Rot(_))).collect();
+                rots.len() == 3
+                    && (j != 0 || c.iter().filter(|x| matches!(x, Channel::Pos(_))).count() == 3)
+            });
         channels.push(match from_layout {
             Some(c) => c.to_vec(),
             None if j == 0 => {
-                let mut c = vec![Channel::Pos(Axis::X), Channel::Pos(Axis::Y), Channel::Pos(Axis::Z)];
+                let mut c = vec![
+                    Channel::Pos(Axis::X),
+                    Channel::Pos(Axis::Y),
+                    Channel::Pos(Axis::Z),
+                ];
                 c.extend(&default_rot);
                 c
             }
@@ -479,17 +599,35 @@ pub fn write_bvh(m: &Motion, opts: &BvhWriteOptions<'_>) -> Result<String, Motio
     out.push_str("MOTION\n");
     let _ = writeln!(out, "Frames: {}", m.frames());
     let _ = writeln!(out, "Frame Time: {:.9}", 1.0 / m.fps);
+    // Frame rows follow the hierarchy's depth-first order.
+    let mut order = Vec::with_capacity(nj);
+    let mut todo = vec![0usize];
+    while let Some(j) = todo.pop() {
+        order.push(j);
+        let mut ch = sk.children(j);
+        ch.reverse();
+        todo.extend(ch);
+    }
     let mut prev: Vec<Vec<f64>> = vec![Vec::new(); nj];
     for f in 0..m.frames() {
         let mut first = true;
-        for j in 0..nj {
+        for &j in &order {
             let q = axis_angle_to_quat(m.rot(f, j));
             let rot_axes: Vec<Axis> = channels[j]
                 .iter()
-                .filter_map(|c| if let Channel::Rot(a) = c { Some(*a) } else { None })
+                .filter_map(|c| {
+                    if let Channel::Rot(a) = c {
+                        Some(*a)
+                    } else {
+                        None
+                    }
+                })
                 .collect();
             let order = EulerOrder::intrinsic([rot_axes[0], rot_axes[1], rot_axes[2]]);
-            let mut e: Vec<f64> = quat_to_euler(q, order).iter().map(|v| v.to_degrees()).collect();
+            let mut e: Vec<f64> = quat_to_euler(q, order)
+                .iter()
+                .map(|v| v.to_degrees())
+                .collect();
             // Keep each channel continuous with the previous frame.
             if let Some(p) = prev.get(j).filter(|p| !p.is_empty()) {
                 for (v, pv) in e.iter_mut().zip(p) {
@@ -522,7 +660,14 @@ pub fn write_bvh(m: &Motion, opts: &BvhWriteOptions<'_>) -> Result<String, Motio
     Ok(out)
 }
 
-fn write_joint(out: &mut String, m: &Motion, j: usize, depth: usize, channels: &[Vec<Channel>], opts: &BvhWriteOptions<'_>) {
+fn write_joint(
+    out: &mut String,
+    m: &Motion,
+    j: usize,
+    depth: usize,
+    channels: &[Vec<Channel>],
+    opts: &BvhWriteOptions<'_>,
+) {
     let sk = &m.skeleton;
     let ind = "  ".repeat(depth);
     let u = opts.metres_per_unit;
@@ -544,7 +689,12 @@ fn write_joint(out: &mut String, m: &Motion, j: usize, depth: usize, channels: &
     for &c in &children {
         write_joint(out, m, c, depth + 1, channels, opts);
     }
-    let mut ends: Vec<Vec3> = sk.end_sites.iter().filter(|e| e.parent == j).map(|e| e.offset).collect();
+    let mut ends: Vec<Vec3> = sk
+        .end_sites
+        .iter()
+        .filter(|e| e.parent == j)
+        .map(|e| e.offset)
+        .collect();
     if children.is_empty() && ends.is_empty() {
         // Every leaf needs an End Site; continue the joint's own bone a little.
         ends.push(scale(sk.offsets[j], 0.25));
@@ -626,7 +776,13 @@ Frame Time: 0.033333
 ";
 
     fn read(text: &str) -> Result<BvhMotion, MotionError> {
-        read_bvh("tiny.bvh", text, &BvhReadOptions { metres_per_unit: Some(0.01) })
+        read_bvh(
+            "tiny.bvh",
+            text,
+            &BvhReadOptions {
+                metres_per_unit: Some(0.01),
+            },
+        )
     }
 
     #[test]
@@ -635,7 +791,7 @@ Frame Time: 0.033333
         let m = &b.motion;
         assert_eq!(m.frames(), 2);
         assert_eq!(m.joints(), 7);
-        assert!((m.fps - 30.0003).abs() < 1e-3);
+        assert_eq!(m.fps, 30.0);
         let p = m.positions();
         // Frame 0: root at (0.01, 0.90, 0.02) m; knee bent 90° about x, so
         // the shin (0, -0.40) points along -z... Rx(90°) maps -y to -z.
@@ -647,7 +803,14 @@ Frame Time: 0.033333
     #[test]
     fn write_then_read_is_exact_to_precision() {
         let b = read(TINY).unwrap();
-        let text = write_bvh(&b.motion, &BvhWriteOptions { layout: Some(&b.layout), ..Default::default() }).unwrap();
+        let text = write_bvh(
+            &b.motion,
+            &BvhWriteOptions {
+                layout: Some(&b.layout),
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let back = read(&text).unwrap().motion;
         let (a, c) = (b.motion.positions(), back.positions());
         for (x, y) in a.iter().zip(&c) {
@@ -665,13 +828,25 @@ Frame Time: 0.033333
             ("HIERARCHY ROOT a { OFFSET 0 0", "OFFSET"),
             (&TINY.replace("Frames: 2", "Frames: 99999999999"), "Frames"),
             (&TINY.replace("Frames: 2", "Frames: 3"), "truncated"),
-            (&TINY.replace("Frame Time: 0.033333", "Frame Time: 0"), "Frame Time"),
+            (
+                &TINY.replace("Frame Time: 0.033333", "Frame Time: 0"),
+                "Frame Time",
+            ),
             (&TINY.replace("1 91 3", "1 nan 3"), "MOTION"),
-            (&TINY.replace("Zrotation Xrotation Yrotation\n  JOINT LeftUpLeg", "Zrotation Xrotation Wrotation\n  JOINT LeftUpLeg"), "CHANNELS"),
+            (
+                &TINY.replace(
+                    "Zrotation Xrotation Yrotation\n  JOINT LeftUpLeg",
+                    "Zrotation Xrotation Wrotation\n  JOINT LeftUpLeg",
+                ),
+                "CHANNELS",
+            ),
             (&TINY[..TINY.len() - 30], "truncated"),
         ];
         for (text, want) in cases {
-            let e = read(text).err().unwrap_or_else(|| panic!("accepted: {want}")).to_string();
+            let e = read(text)
+                .err()
+                .unwrap_or_else(|| panic!("accepted: {want}"))
+                .to_string();
             assert!(e.contains(want) && e.contains("tiny.bvh"), "{want}: {e}");
         }
     }

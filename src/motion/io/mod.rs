@@ -50,7 +50,10 @@ impl Format {
         match bytes {
             [0x80, ..] => Some(Format::Aist),
             [b'P', b'K', ..] => Some(Format::Amass),
-            _ if String::from_utf8_lossy(&bytes[..bytes.len().min(64)]).trim_start().starts_with("HIERARCHY") => {
+            _ if String::from_utf8_lossy(&bytes[..bytes.len().min(64)])
+                .trim_start()
+                .starts_with("HIERARCHY") =>
+            {
                 Some(Format::Bvh)
             }
             _ => None,
@@ -89,8 +92,9 @@ pub fn read_bytes(file: &str, bytes: &[u8], opts: &ReadOptions) -> Result<Loaded
             bvh_layout: None,
         }),
         Format::Bvh => {
-            let text = std::str::from_utf8(bytes)
-                .map_err(|e| MotionError::invalid(file, "text", format!("not UTF-8/ASCII text ({e})")))?;
+            let text = std::str::from_utf8(bytes).map_err(|e| {
+                MotionError::invalid(file, "text", format!("not UTF-8/ASCII text ({e})"))
+            })?;
             let b = bvh::read_bvh(file, text, &opts.bvh)?;
             Ok(Loaded {
                 motion: b.motion,
@@ -103,10 +107,20 @@ pub fn read_bytes(file: &str, bytes: &[u8], opts: &ReadOptions) -> Result<Loaded
 
 pub fn read_path(path: &Path, opts: &ReadOptions) -> Result<Loaded, MotionError> {
     let file = path.display().to_string();
-    let io = |source| MotionError::Io { file: file.clone(), source };
+    let io = |source| MotionError::Io {
+        file: file.clone(),
+        source,
+    };
     let meta = std::fs::metadata(path).map_err(io)?;
     if meta.len() > MAX_FILE_BYTES {
-        return Err(MotionError::invalid(&file, "size", format!("{} bytes is over the {MAX_FILE_BYTES}-byte limit", meta.len())));
+        return Err(MotionError::invalid(
+            &file,
+            "size",
+            format!(
+                "{} bytes is over the {MAX_FILE_BYTES}-byte limit",
+                meta.len()
+            ),
+        ));
     }
     let bytes = std::fs::read(path).map_err(io)?;
     read_bytes(&file, &bytes, opts)
@@ -114,7 +128,11 @@ pub fn read_path(path: &Path, opts: &ReadOptions) -> Result<Loaded, MotionError>
 
 /// Write by the extension of `path`: `.bvh` or `.npz`. The file appears
 /// whole or not at all (written beside, then renamed).
-pub fn write_path(m: &Motion, path: &Path, bvh_opts: &bvh::BvhWriteOptions<'_>) -> Result<(), MotionError> {
+pub fn write_path(
+    m: &Motion,
+    path: &Path,
+    bvh_opts: &bvh::BvhWriteOptions<'_>,
+) -> Result<(), MotionError> {
     let file = path.display().to_string();
     let lower = file.to_ascii_lowercase();
     let bytes = if lower.ends_with(".bvh") {
@@ -128,7 +146,10 @@ pub fn write_path(m: &Motion, path: &Path, bvh_opts: &bvh::BvhWriteOptions<'_>) 
         });
     };
     let tmp = path.with_extension("partial");
-    let io = |source| MotionError::Io { file: file.clone(), source };
+    let io = |source| MotionError::Io {
+        file: file.clone(),
+        source,
+    };
     std::fs::write(&tmp, bytes).map_err(io)?;
     std::fs::rename(&tmp, path).map_err(io)
 }

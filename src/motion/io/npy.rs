@@ -15,7 +15,12 @@ impl NdArray {
 
     /// Decode raw bytes of dtype `descr` (`<f4`, `>f8`, `|u1`, ...) with the
     /// given shape. The byte count must match exactly.
-    pub fn from_raw(descr: &str, shape: Vec<usize>, raw: &[u8], fortran: bool) -> Result<Self, String> {
+    pub fn from_raw(
+        descr: &str,
+        shape: Vec<usize>,
+        raw: &[u8],
+        fortran: bool,
+    ) -> Result<Self, String> {
         let (order, kind) = descr.split_at(1.min(descr.len()));
         let big = match order {
             "<" | "|" | "=" => false,
@@ -27,7 +32,10 @@ impl NdArray {
             .and_then(|w| w.parse().ok())
             .ok_or(format!("dtype '{descr}' is not understood"))?;
         let code = kind.chars().next().unwrap_or('?');
-        let supported = matches!((code, width), ('f', 4) | ('f', 8) | ('f', 2) | ('i', 1 | 2 | 4 | 8) | ('u', 1 | 2 | 4 | 8) | ('b', 1));
+        let supported = matches!(
+            (code, width),
+            ('f', 4) | ('f', 8) | ('f', 2) | ('i', 1 | 2 | 4 | 8) | ('u', 1 | 2 | 4 | 8) | ('b', 1)
+        );
         if !supported {
             return Err(format!("dtype '{descr}' is not a supported numeric type"));
         }
@@ -114,11 +122,16 @@ impl NdArray {
             1 => format!("({},)", self.shape[0]),
             _ => format!(
                 "({})",
-                self.shape.iter().map(|d| d.to_string()).collect::<Vec<_>>().join(", ")
+                self.shape
+                    .iter()
+                    .map(|d| d.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         };
         let descr = if f32_data { "<f4" } else { "<f8" };
-        let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
+        let mut header =
+            format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
         let total = 10 + header.len() + 1;
         header.push_str(&" ".repeat((64 - total % 64) % 64));
         header.push('\n');
@@ -165,11 +178,17 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NdArray, String> {
             if bytes.len() < 12 {
                 return Err("truncated .npy header".into());
             }
-            (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12)
+            (
+                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+                12,
+            )
         }
         v => return Err(format!(".npy version {v} is not supported")),
     };
-    let end = start.checked_add(hlen).filter(|&e| e <= bytes.len()).ok_or("truncated .npy header")?;
+    let end = start
+        .checked_add(hlen)
+        .filter(|&e| e <= bytes.len())
+        .ok_or("truncated .npy header")?;
     let header = std::str::from_utf8(&bytes[start..end]).map_err(|_| ".npy header is not text")?;
     let descr = header_str(header, "descr").ok_or(".npy header has no 'descr'")?;
     let fortran = header_field(header, "fortran_order")
@@ -182,7 +201,10 @@ pub fn parse_npy(bytes: &[u8]) -> Result<NdArray, String> {
         .split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<usize>().map_err(|_| format!(".npy shape entry '{s}' is not a size")))
+        .map(|s| {
+            s.parse::<usize>()
+                .map_err(|_| format!(".npy shape entry '{s}' is not a size"))
+        })
         .collect::<Result<Vec<_>, _>>()?;
     NdArray::from_raw(&descr, shape, &bytes[end..], fortran)
 }
@@ -215,7 +237,10 @@ mod tests {
         };
         assert_eq!(parse_npy(&a.to_npy(false)).unwrap(), a);
         // The same matrix stored column-major.
-        let raw: Vec<u8> = [1.0f64, 4.0, 2.0, 5.0, 3.0, 6.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let raw: Vec<u8> = [1.0f64, 4.0, 2.0, 5.0, 3.0, 6.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
         let f = NdArray::from_raw("<f8", vec![2, 3], &raw, true).unwrap();
         assert_eq!(f, a);
     }
@@ -223,7 +248,11 @@ mod tests {
     #[test]
     fn bad_npy_errors() {
         assert!(parse_npy(b"hello").is_err());
-        let mut b = NdArray { shape: vec![4], data: vec![0.0; 4] }.to_npy(true);
+        let mut b = NdArray {
+            shape: vec![4],
+            data: vec![0.0; 4],
+        }
+        .to_npy(true);
         b.truncate(b.len() - 1);
         assert!(parse_npy(&b).unwrap_err().contains("needs 16 bytes"));
         assert!(NdArray::from_raw("<c16", vec![1], &[0; 16], false).is_err());

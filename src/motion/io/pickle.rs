@@ -24,9 +24,15 @@ pub enum Value {
     Dict(Vec<(Value, Value)>),
     Array(NdArray),
     /// A numpy dtype under construction: its descr (`"f4"`) and byte order.
-    Dtype { descr: String, order: char },
+    Dtype {
+        descr: String,
+        order: char,
+    },
     /// A callable named by GLOBAL / STACK_GLOBAL.
-    Global { module: String, name: String },
+    Global {
+        module: String,
+        name: String,
+    },
     Mark,
 }
 
@@ -64,7 +70,9 @@ impl Value {
 
 /// Look a string key up in a pickled dict.
 pub fn dict_get<'a>(d: &'a [(Value, Value)], key: &str) -> Option<&'a Value> {
-    d.iter().find(|(k, _)| k.as_str() == Some(key)).map(|(_, v)| v)
+    d.iter()
+        .find(|(k, _)| k.as_str() == Some(key))
+        .map(|(_, v)| v)
 }
 
 const MAX_STACK: usize = 100_000;
@@ -133,10 +141,14 @@ impl<'a> Vm<'a> {
         Ok(())
     }
     fn pop(&mut self) -> Result<Value, String> {
-        self.stack.pop().ok_or_else(|| "stack underflow".to_string())
+        self.stack
+            .pop()
+            .ok_or_else(|| "stack underflow".to_string())
     }
     fn top(&mut self) -> Result<&mut Value, String> {
-        self.stack.last_mut().ok_or_else(|| "stack underflow".to_string())
+        self.stack
+            .last_mut()
+            .ok_or_else(|| "stack underflow".to_string())
     }
     fn pop_mark(&mut self) -> Result<Vec<Value>, String> {
         let i = self
@@ -152,12 +164,20 @@ impl<'a> Vm<'a> {
         if self.memo.len() >= MAX_MEMO {
             return Err(format!("memo larger than {MAX_MEMO}"));
         }
-        let v = self.stack.last().ok_or("MEMOIZE on an empty stack")?.clone();
+        let v = self
+            .stack
+            .last()
+            .ok_or("MEMOIZE on an empty stack")?
+            .clone();
         self.memo.insert(idx, v);
         Ok(())
     }
     fn memo_get(&mut self, idx: u32) -> Result<(), String> {
-        let v = self.memo.get(&idx).ok_or(format!("memo key {idx} never stored"))?.clone();
+        let v = self
+            .memo
+            .get(&idx)
+            .ok_or(format!("memo key {idx} never stored"))?
+            .clone();
         self.push(v)
     }
     fn utf8(b: &[u8]) -> Result<String, String> {
@@ -167,7 +187,9 @@ impl<'a> Vm<'a> {
     fn run(&mut self) -> Result<Value, String> {
         loop {
             let at = self.pos;
-            let op = self.u8().map_err(|_| "truncated: no STOP opcode".to_string())?;
+            let op = self
+                .u8()
+                .map_err(|_| "truncated: no STOP opcode".to_string())?;
             match op {
                 0x80 => {
                     let proto = self.u8()?;
@@ -272,7 +294,9 @@ impl<'a> Vm<'a> {
                 }
                 b'J' => {
                     let b = self.take(4)?;
-                    self.push(Value::Int(i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as i64))?;
+                    self.push(Value::Int(
+                        i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as i64
+                    ))?;
                 }
                 b'K' => {
                     let v = self.u8()?;
@@ -288,7 +312,11 @@ impl<'a> Vm<'a> {
                     if n > 8 {
                         return Err(format!("LONG1 of {n} bytes does not fit in 64 bits"));
                     }
-                    let mut buf = if b.last().is_some_and(|&x| x & 0x80 != 0) { [0xffu8; 8] } else { [0u8; 8] };
+                    let mut buf = if b.last().is_some_and(|&x| x & 0x80 != 0) {
+                        [0xffu8; 8]
+                    } else {
+                        [0u8; 8]
+                    };
                     buf[..n].copy_from_slice(b);
                     self.push(Value::Int(i64::from_le_bytes(buf)))?;
                 }
@@ -297,7 +325,9 @@ impl<'a> Vm<'a> {
                 0x89 => self.push(Value::Bool(false))?,
                 b'G' => {
                     let b = self.take(8)?;
-                    self.push(Value::Float(f64::from_be_bytes(b.try_into().expect("8 bytes"))))?;
+                    self.push(Value::Float(f64::from_be_bytes(
+                        b.try_into().expect("8 bytes"),
+                    )))?;
                 }
                 0x8c => {
                     let n = self.u8()? as usize;
@@ -349,7 +379,9 @@ impl<'a> Vm<'a> {
                     let name = self.pop()?;
                     let module = self.pop()?;
                     match (module, name) {
-                        (Value::Str(module), Value::Str(name)) => self.push(Value::Global { module, name })?,
+                        (Value::Str(module), Value::Str(name)) => {
+                            self.push(Value::Global { module, name })?
+                        }
                         _ => return Err("STACK_GLOBAL needs two strings".into()),
                     }
                 }
@@ -366,7 +398,9 @@ impl<'a> Vm<'a> {
                     self.push(v)?;
                 }
                 other => {
-                    return Err(format!("unsupported pickle opcode 0x{other:02x} at offset {at}"));
+                    return Err(format!(
+                        "unsupported pickle opcode 0x{other:02x} at offset {at}"
+                    ));
                 }
             }
         }
@@ -395,7 +429,12 @@ fn reduce(func: Value, args: Value) -> Result<Value, String> {
     };
     let args = match args {
         Value::Tuple(a) => a,
-        other => return Err(format!("REDUCE arguments are a {}, not a tuple", other.kind())),
+        other => {
+            return Err(format!(
+                "REDUCE arguments are a {}, not a tuple",
+                other.kind()
+            ))
+        }
     };
     match (module.as_str(), name.as_str()) {
         (m, "_reconstruct") if is_numpy_multiarray(m) => Ok(Value::Array(NdArray::empty())),
@@ -407,7 +446,9 @@ fn reduce(func: Value, args: Value) -> Result<Value, String> {
             _ => Err("numpy.dtype needs a descr string".into()),
         },
         (m, "scalar") if is_numpy_multiarray(m) => {
-            let (Some(Value::Dtype { descr, order }), Some(Value::Bytes(b))) = (args.first(), args.get(1)) else {
+            let (Some(Value::Dtype { descr, order }), Some(Value::Bytes(b))) =
+                (args.first(), args.get(1))
+            else {
                 return Err("numpy scalar needs (dtype, bytes)".into());
             };
             let a = NdArray::from_raw(&dtype_string(descr, *order), vec![], b, false)?;
@@ -417,7 +458,10 @@ fn reduce(func: Value, args: Value) -> Result<Value, String> {
             // Python 3 pickles of bytes at protocol < 3: latin-1 code points.
             Some(Value::Str(s)) => Ok(Value::Bytes(
                 s.chars()
-                    .map(|c| u8::try_from(c as u32).map_err(|_| "non-latin-1 char in encoded bytes".to_string()))
+                    .map(|c| {
+                        u8::try_from(c as u32)
+                            .map_err(|_| "non-latin-1 char in encoded bytes".to_string())
+                    })
                     .collect::<Result<_, _>>()?,
             )),
             _ => Err("_codecs.encode needs a string".into()),
@@ -481,7 +525,12 @@ fn build(obj: Value, state: Value) -> Result<Value, String> {
                     t[4].kind()
                 ));
             };
-            Ok(Value::Array(NdArray::from_raw(&dtype_string(descr, *order), shape, raw, fortran)?))
+            Ok(Value::Array(NdArray::from_raw(
+                &dtype_string(descr, *order),
+                shape,
+                raw,
+                fortran,
+            )?))
         }
         other => Err(format!("BUILD on a {} is not supported", other.kind())),
     }
@@ -503,7 +552,9 @@ mod tests {
     fn truncated_and_garbage_inputs_error() {
         assert!(load(b"").is_err());
         assert!(load(b"\x80\x04\x95").is_err());
-        assert!(load(b"\x80\x04B\xff\xff\xff\x7f").unwrap_err().contains("truncated"));
+        assert!(load(b"\x80\x04B\xff\xff\xff\x7f")
+            .unwrap_err()
+            .contains("truncated"));
         assert!(load(b"\x80\x04}(K\x01u.").is_err());
     }
 
@@ -516,6 +567,9 @@ mod tests {
         let v = load(&p).unwrap();
         let d = v.as_dict().unwrap();
         assert_eq!(dict_get(d, "a"), Some(&Value::Int(1)));
-        assert_eq!(dict_get(d, "b"), Some(&Value::List(vec![Value::Float(1.5)])));
+        assert_eq!(
+            dict_get(d, "b"),
+            Some(&Value::List(vec![Value::Float(1.5)]))
+        );
     }
 }
