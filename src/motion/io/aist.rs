@@ -91,6 +91,20 @@ pub fn read_aist_pickle(file: &str, bytes: &[u8]) -> Result<Motion, MotionError>
             format!("{scaling} is not a positive scale"),
         ));
     }
+    if let Some(i) = poses.data.iter().position(|v| !v.is_finite()) {
+        return Err(MotionError::invalid(
+            file,
+            "smpl_poses",
+            format!("frame {} value {} is {}", i / 72, i % 72, poses.data[i]),
+        ));
+    }
+    if let Some(i) = trans.data.iter().position(|v| !v.is_finite()) {
+        return Err(MotionError::invalid(
+            file,
+            "smpl_trans",
+            format!("frame {} is {}", i / 3, trans.data[i]),
+        ));
+    }
     let rotations = poses
         .data
         .chunks_exact(3)
