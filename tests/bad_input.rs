@@ -68,6 +68,11 @@ fn bvh_errors_name_file_field_reason() {
             "MOTION",
         ),
         (String::from("HIERARCHY\n") + &"{ ".repeat(10), "ROOT"),
+        // Found by cargo fuzz: a multi-byte character inside a channel name.
+        (
+            good.replacen("Xrotation", "\u{1ef}Xrotation", 1),
+            "CHANNELS",
+        ),
     ];
     for (text, want) in cases {
         let e = err("bad.bvh", text.as_bytes());

@@ -24,7 +24,7 @@ pub const AIST_GENRES: [(&str, &str); 10] = [
 /// k = 0..5, House 110..135 in steps of 5.
 pub fn aist_tempo_bpm(music: &str) -> Option<u32> {
     let m = music.strip_prefix('m').unwrap_or(music);
-    if m.len() != 3 {
+    if m.len() != 3 || !m.is_ascii() {
         return None;
     }
     let genre = &m[..2];

@@ -37,7 +37,10 @@ impl Channel {
         }
     }
     fn parse(s: &str) -> Option<Channel> {
-        let (axis, kind) = s.split_at(1.min(s.len()));
+        if !s.is_ascii() || s.is_empty() {
+            return None;
+        }
+        let (axis, kind) = s.split_at(1);
         let axis = match axis {
             "X" | "x" => Axis::X,
             "Y" | "y" => Axis::Y,

@@ -21,7 +21,10 @@ impl NdArray {
         raw: &[u8],
         fortran: bool,
     ) -> Result<Self, String> {
-        let (order, kind) = descr.split_at(1.min(descr.len()));
+        if !descr.is_ascii() || descr.is_empty() {
+            return Err(format!("dtype '{descr}' is not understood"));
+        }
+        let (order, kind) = descr.split_at(1);
         let big = match order {
             "<" | "|" | "=" => false,
             ">" => true,
