@@ -75,11 +75,16 @@ pub fn dict_get<'a>(d: &'a [(Value, Value)], key: &str) -> Option<&'a Value> {
         .map(|(_, v)| v)
 }
 
-const MAX_STACK: usize = 100_000;
+/// Deepest stack (and so deepest nesting) accepted; AIST++ files need < 20.
+const MAX_STACK: usize = 4096;
 const MAX_MEMO: usize = 1_000_000;
 
 struct Vm<'a> {
     data: &'a [u8],
+    /// Values copied by DUP / memo gets so far, weighed by [`weight`]: a
+    /// pickle that copies a container into itself grows exponentially, so
+    /// copies are capped at a multiple of the input size.
+    copied: usize,
     pos: usize,
     stack: Vec<Value>,
     memo: HashMap<u32, Value>,
@@ -89,6 +94,7 @@ struct Vm<'a> {
 pub fn load(data: &[u8]) -> Result<Value, String> {
     let mut vm = Vm {
         data,
+        copied: 0,
         pos: 0,
         stack: Vec::new(),
         memo: HashMap::new(),
@@ -176,9 +182,23 @@ impl<'a> Vm<'a> {
         let v = self
             .memo
             .get(&idx)
-            .ok_or(format!("memo key {idx} never stored"))?
-            .clone();
+            .ok_or(format!("memo key {idx} never stored"))?;
+        let w = weight(v, self.budget());
+        let v = v.clone();
+        self.charge(w)?;
         self.push(v)
+    }
+    fn budget(&self) -> usize {
+        64 * self.data.len() + (1 << 20)
+    }
+    fn charge(&mut self, w: usize) -> Result<(), String> {
+        self.copied = self.copied.saturating_add(w);
+        if self.copied > self.budget() {
+            return Err(
+                "pickle copies more data than it holds (a recursive or exploding structure)".into(),
+            );
+        }
+        Ok(())
     }
     fn utf8(b: &[u8]) -> Result<String, String> {
         String::from_utf8(b.to_vec()).map_err(|_| "string is not UTF-8".to_string())
@@ -209,6 +229,9 @@ impl<'a> Vm<'a> {
                     self.pop_mark()?;
                 }
                 b'2' => {
+                    let budget = self.budget();
+                    let w = weight(self.top()?, budget);
+                    self.charge(w)?;
                     let v = self.top()?.clone();
                     self.push(v)?;
                 }
@@ -407,6 +430,27 @@ impl<'a> Vm<'a> {
     }
 }
 
+/// Roughly the bytes a value holds, counting at most `cap`.
+fn weight(v: &Value, cap: usize) -> usize {
+    let mut total = 0usize;
+    let mut todo = vec![v];
+    while let Some(v) = todo.pop() {
+        total += 16;
+        match v {
+            Value::Str(s) => total += s.len(),
+            Value::Bytes(b) => total += b.len(),
+            Value::Array(a) => total += 8 * a.data.len(),
+            Value::Tuple(t) | Value::List(t) => todo.extend(t.iter()),
+            Value::Dict(d) => todo.extend(d.iter().flat_map(|(k, v)| [k, v])),
+            _ => {}
+        }
+        if total > cap {
+            break;
+        }
+    }
+    total
+}
+
 fn pairs(items: Vec<Value>) -> Result<Vec<(Value, Value)>, String> {
     if items.len() % 2 != 0 {
         return Err("odd number of items for a dict".into());
@@ -556,6 +600,21 @@ mod tests {
             .unwrap_err()
             .contains("truncated"));
         assert!(load(b"\x80\x04}(K\x01u.").is_err());
+    }
+
+    #[test]
+    fn exploding_copies_are_refused() {
+        // L = [1]; then 64 times: L = [L, L] (memo get twice, rebuild, put
+        // back). Without a cap this is 2^64 elements.
+        let mut p = b"\x80\x04](K\x01eq\x000".to_vec();
+        for _ in 0..64 {
+            p.extend_from_slice(b"(h\x00h\x00lq\x000");
+        }
+        p.extend_from_slice(b"N.");
+        assert!(load(&p).unwrap_err().contains("copies more data"));
+        // Deep nesting is bounded by the stack limit.
+        let deep = vec![b']'; 10_000];
+        assert!(load(&deep).unwrap_err().contains("stack deeper"));
     }
 
     #[test]
