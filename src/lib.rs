@@ -5,6 +5,10 @@
 //!   forward kinematics, readers/writers (AIST++ pickle, AMASS npz, BVH),
 //!   retargeting onto the SMPL 13-joint subset.
 //! - [`data`] — where the real corpora live (`CHOREO_DATA`).
+//! - [`features`] — pure: STFT / DCT / PCA window embeddings.
+//! - [`index`] — `AnnIndex`: exact (the oracle) and HNSW, cosine or Euclidean.
 
 pub mod data;
+pub mod features;
+pub mod index;
 pub mod motion;

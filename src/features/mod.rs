@@ -1,0 +1,295 @@
+//! Spectral embeddings of motion windows (thesis 000 §3.4, SPEC §2). Pure.
+//!
+//! A motion becomes the canonical channel matrix ([`channels72`]): SMPL-24
+//! local axis-angle, 72 channels, at 60 fps (non-SMPL skeletons are
+//! retargeted onto the 13-joint subset, the other joints left at rest).
+//! Windows of 128 frames (2.13 s) are cut every `hop` frames; each window is
+//! held channel-major, `[72][128]`.
+//!
+//! - STFT: per channel, periodic Hann window of 16, hop 8, no padding:
+//!   15 frames × 9 bins of |rfft| → 72 × 135 = 9,720 values.
+//! - DCT: orthonormal DCT-II per channel, first 16 coefficients → 1,152.
+//! - PCA: 16 components fitted on the per-channel 128-sample series of the
+//!   indexed windows; each channel's series projected → 1,152.
+
+pub mod pca;
+
+use crate::motion::retarget::{retarget_to_smpl13, JointMap};
+use crate::motion::{Motion, MotionError};
+use rustdct::DctPlanner;
+use rustfft::{num_complex::Complex, FftPlanner};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+pub use pca::Pca;
+
+/// Frames per window (at [`FEATURE_FPS`]).
+pub const WINDOW: usize = 128;
+/// The frame rate windows are cut at.
+pub const FEATURE_FPS: f64 = 60.0;
+/// Channels: 24 SMPL joints × 3 axis-angle components.
+pub const CHANNELS: usize = 72;
+/// Kept DCT / PCA coefficients per channel.
+pub const COEFFS: usize = 16;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
+#[serde(rename_all = "lowercase")]
+pub enum Embedding {
+    Stft,
+    Dct,
+    Pca,
+}
+
+impl Embedding {
+    pub const ALL: [Embedding; 3] = [Embedding::Stft, Embedding::Dct, Embedding::Pca];
+    pub fn name(self) -> &'static str {
+        match self {
+            Embedding::Stft => "stft",
+            Embedding::Dct => "dct",
+            Embedding::Pca => "pca",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Embedding> {
+        match s.to_ascii_lowercase().as_str() {
+            "stft" => Some(Embedding::Stft),
+            "dct" => Some(Embedding::Dct),
+            "pca" => Some(Embedding::Pca),
+            _ => None,
+        }
+    }
+}
+
+/// STFT settings (SPEC §2 defaults: window 16, hop 8).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StftParams {
+    pub win: usize,
+    pub hop: usize,
+}
+
+impl Default for StftParams {
+    fn default() -> Self {
+        StftParams { win: 16, hop: 8 }
+    }
+}
+
+impl StftParams {
+    pub fn frames(&self) -> usize {
+        1 + (WINDOW - self.win) / self.hop
+    }
+    pub fn bins(&self) -> usize {
+        self.win / 2 + 1
+    }
+    pub fn dim(&self) -> usize {
+        CHANNELS * self.frames() * self.bins()
+    }
+    pub fn validate(&self) -> Result<(), MotionError> {
+        if self.win < 2 || self.win > WINDOW || self.hop == 0 || self.hop > self.win {
+            return Err(MotionError::invalid(
+                "stft",
+                "win/hop",
+                format!(
+                    "window {} and hop {} must satisfy 2 <= win <= {WINDOW}, 1 <= hop <= win",
+                    self.win, self.hop
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The canonical channel matrix of a motion: `[frames][72]` f32 at 60 fps,
+/// SMPL-24 local axis-angle. Non-SMPL skeletons are retargeted (built-in
+/// joint map) onto the 13-joint subset; dropped joints stay at rest (zero).
+pub fn channels72(m: &Motion) -> Result<Vec<[f32; CHANNELS]>, MotionError> {
+    let smpl = match m.skeleton.kind.as_str() {
+        "smpl24" => m.clone(),
+        "smpl13" => m.smpl13_to_smpl24()?,
+        _ => {
+            let map =
+                JointMap::resolve(&m.skeleton, &BTreeMap::new()).map_err(|e| e.in_file(&m.name))?;
+            retarget_to_smpl13(m, &map)?.smpl13_to_smpl24()?
+        }
+    };
+    let smpl = smpl.resample(FEATURE_FPS)?;
+    Ok((0..smpl.frames())
+        .map(|f| {
+            let mut row = [0f32; CHANNELS];
+            for (j, r) in smpl.frame_rotations(f).iter().enumerate() {
+                row[3 * j] = r[0] as f32;
+                row[3 * j + 1] = r[1] as f32;
+                row[3 * j + 2] = r[2] as f32;
+            }
+            row
+        })
+        .collect())
+}
+
+/// Window start frames for `frames` frames: `0, hop, 2·hop, …` while a whole
+/// window fits.
+pub fn window_starts(frames: usize, hop: usize) -> Vec<usize> {
+    if frames < WINDOW || hop == 0 {
+        return Vec::new();
+    }
+    (0..=(frames - WINDOW) / hop).map(|i| i * hop).collect()
+}
+
+/// One window, channel-major `[72][128]`.
+pub fn window(ch: &[[f32; CHANNELS]], start: usize) -> Vec<f32> {
+    let mut w = vec![0f32; CHANNELS * WINDOW];
+    for t in 0..WINDOW {
+        let row = &ch[start + t];
+        for c in 0..CHANNELS {
+            w[c * WINDOW + t] = row[c];
+        }
+    }
+    w
+}
+
+/// Reusable FFT/DCT plans; cheap to clone and share across threads.
+#[derive(Clone)]
+pub struct Extractor {
+    pub stft: StftParams,
+    fft: Arc<dyn rustfft::Fft<f32>>,
+    hann: Vec<f32>,
+    dct: Arc<dyn rustdct::TransformType2And3<f32>>,
+}
+
+impl Extractor {
+    pub fn new(stft: StftParams) -> Result<Self, MotionError> {
+        stft.validate()?;
+        let fft = FftPlanner::new().plan_fft_forward(stft.win);
+        // Periodic Hann (scipy.signal.get_window('hann', N)).
+        let hann = (0..stft.win)
+            .map(|n| {
+                (0.5 - 0.5 * (2.0 * std::f64::consts::PI * n as f64 / stft.win as f64).cos()) as f32
+            })
+            .collect();
+        let dct = DctPlanner::new().plan_dct2(WINDOW);
+        Ok(Extractor {
+            stft,
+            fft,
+            hann,
+            dct,
+        })
+    }
+
+    pub fn dim(&self, e: Embedding) -> usize {
+        match e {
+            Embedding::Stft => self.stft.dim(),
+            Embedding::Dct | Embedding::Pca => CHANNELS * COEFFS,
+        }
+    }
+
+    /// STFT magnitudes, flattened `[channel][frame][bin]`.
+    pub fn stft(&self, win: &[f32]) -> Vec<f32> {
+        let (n, hop) = (self.stft.win, self.stft.hop);
+        let (frames, bins) = (self.stft.frames(), self.stft.bins());
+        let mut out = Vec::with_capacity(CHANNELS * frames * bins);
+        let mut buf = vec![Complex::new(0f32, 0f32); n];
+        for c in 0..CHANNELS {
+            let x = &win[c * WINDOW..(c + 1) * WINDOW];
+            for f in 0..frames {
+                for (k, b) in buf.iter_mut().enumerate() {
+                    *b = Complex::new(x[f * hop + k] * self.hann[k], 0.0);
+                }
+                self.fft.process(&mut buf);
+                out.extend(buf[..bins].iter().map(|z| z.norm()));
+            }
+        }
+        out
+    }
+
+    /// Orthonormal DCT-II of every channel, all 128 coefficients, `[72][128]`.
+    pub fn dct_full(&self, win: &[f32]) -> Vec<f32> {
+        let mut out = win.to_vec();
+        let s0 = (1.0 / WINDOW as f32).sqrt();
+        let sk = (2.0 / WINDOW as f32).sqrt();
+        for c in 0..CHANNELS {
+            let ch = &mut out[c * WINDOW..(c + 1) * WINDOW];
+            self.dct.process_dct2(ch);
+            ch[0] *= s0;
+            for v in ch[1..].iter_mut() {
+                *v *= sk;
+            }
+        }
+        out
+    }
+
+    /// First 16 orthonormal DCT-II coefficients per channel, `[72][16]`.
+    pub fn dct(&self, win: &[f32]) -> Vec<f32> {
+        let full = self.dct_full(win);
+        (0..CHANNELS)
+            .flat_map(|c| full[c * WINDOW..c * WINDOW + COEFFS].to_vec())
+            .collect()
+    }
+
+    /// The embedding of one window. PCA needs a fitted model.
+    pub fn embed(
+        &self,
+        e: Embedding,
+        win: &[f32],
+        pca: Option<&Pca>,
+    ) -> Result<Vec<f32>, MotionError> {
+        match e {
+            Embedding::Stft => Ok(self.stft(win)),
+            Embedding::Dct => Ok(self.dct(win)),
+            Embedding::Pca => {
+                let p = pca.ok_or_else(|| {
+                    MotionError::invalid(
+                        "pca",
+                        "model",
+                        "no PCA model fitted yet (ingest motions first)",
+                    )
+                })?;
+                Ok(p.project_window(win))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dct_of_a_constant_is_its_dc_term() {
+        let ex = Extractor::new(StftParams::default()).unwrap();
+        let w = vec![0.5f32; CHANNELS * WINDOW];
+        let d = ex.dct(&w);
+        // Orthonormal: X0 = sqrt(N) * 0.5, the rest zero.
+        assert!((d[0] - 0.5 * (WINDOW as f32).sqrt()).abs() < 1e-4);
+        assert!(d[1..COEFFS].iter().all(|v| v.abs() < 1e-4));
+    }
+
+    #[test]
+    fn stft_of_a_sine_peaks_at_its_bin() {
+        // A sine with 2 cycles per 16 samples lands in bin 2 of every frame.
+        let ex = Extractor::new(StftParams::default()).unwrap();
+        let mut w = vec![0f32; CHANNELS * WINDOW];
+        for t in 0..WINDOW {
+            w[t] = (2.0 * std::f32::consts::PI * 2.0 * t as f32 / 16.0).sin();
+        }
+        let s = ex.stft(&w);
+        assert_eq!(s.len(), StftParams::default().dim());
+        for f in 0..15 {
+            let bins = &s[f * 9..(f + 1) * 9];
+            let arg = bins
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.total_cmp(b.1))
+                .unwrap()
+                .0;
+            assert_eq!(arg, 2);
+            // Hann-windowed sine of amplitude 1: peak magnitude N/4 = 4.
+            assert!((bins[2] - 4.0).abs() < 1e-4, "{}", bins[2]);
+        }
+    }
+
+    #[test]
+    fn windows_cover_whole_windows_only() {
+        assert_eq!(window_starts(127, 32), Vec::<usize>::new());
+        assert_eq!(window_starts(128, 32), vec![0]);
+        assert_eq!(window_starts(200, 32), vec![0, 32, 64]);
+    }
+}
