@@ -12,3 +12,5 @@ pub mod data;
 pub mod features;
 pub mod index;
 pub mod motion;
+pub mod service;
+pub mod store;

@@ -1,10 +1,17 @@
 //! `choreo`: the command-line front of the library (and, later, the server).
 
 use anyhow::{bail, Context, Result};
+use choreo::features::Embedding;
+use choreo::index::hnsw::HnswParams;
+use choreo::index::Metric;
 use choreo::motion::io::{self, bvh, Format, ReadOptions};
 use choreo::motion::retarget::{retarget_to_smpl13, JointMap};
 use choreo::motion::rotation::*;
 use choreo::motion::Motion;
+use choreo::service::eval_query as eval_q;
+use choreo::service::ingest::IngestOptions;
+use choreo::service::query::{QueryRequest, Searcher};
+use choreo::store::Store;
 use clap::{Parser, Subcommand, ValueEnum};
 use serde_json::json;
 use std::collections::BTreeMap;
@@ -113,6 +120,53 @@ enum Cmd {
         #[command(flatten)]
         read: ReadArgs,
     },
+    /// Add motion files/folders (any supported format) to a store: windows,
+    /// embeddings, PCA refit. Idempotent (same content hash → skipped).
+    Ingest {
+        #[arg(required = true)]
+        paths: Vec<PathBuf>,
+        #[arg(long, env = "CHOREO_DB", default_value = "choreo.db")]
+        db: PathBuf,
+        /// Window hop in frames at 60 fps.
+        #[arg(long, default_value_t = 32)]
+        hop: usize,
+        #[arg(long)]
+        json: bool,
+    },
+    /// The stored windows most like a segment of a motion file.
+    Query {
+        #[arg(long, env = "CHOREO_DB", default_value = "choreo.db")]
+        db: PathBuf,
+        #[arg(long)]
+        motion: PathBuf,
+        /// Segment start, seconds.
+        #[arg(long, default_value_t = 0.0)]
+        start: f64,
+        /// Segment length in frames at 60 fps (at least 128).
+        #[arg(long, default_value_t = 128)]
+        frames: usize,
+        #[arg(long, default_value_t = 10)]
+        k: usize,
+        #[arg(long, default_value = "dct")]
+        embedding: String,
+        #[arg(long, default_value = "cosine")]
+        metric: String,
+        /// KIND=VALUE, repeatable: hits must carry every label.
+        #[arg(long)]
+        filter: Vec<String>,
+        /// Exact search instead of HNSW.
+        #[arg(long)]
+        exact: bool,
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
+    /// Evaluations that reproduce the theses' tables.
+    Eval {
+        #[command(subcommand)]
+        cmd: EvalCmd,
+    },
     /// Internal checks used by the reference scripts.
     #[command(hide = true)]
     Dev {
@@ -122,7 +176,40 @@ enum Cmd {
 }
 
 #[derive(Subcommand)]
+enum EvalCmd {
+    /// Thesis 000 Table 3.2 protocol on a corpus: every window a query,
+    /// same-sequence neighbours excluded, k = 10, majority vote, entropy (bans).
+    Query {
+        #[arg(long)]
+        data: Vec<PathBuf>,
+        /// Label kinds to score, comma-separated (e.g. content,style or genre,dancer).
+        #[arg(long, value_delimiter = ',', required = true)]
+        labels: Vec<String>,
+        /// Embeddings to evaluate (default: all three).
+        #[arg(long, value_delimiter = ',')]
+        embedding: Vec<String>,
+        #[arg(long, default_value_t = 32)]
+        hop: usize,
+        #[arg(long, default_value_t = 10)]
+        k: usize,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Subcommand)]
 enum DevCmd {
+    /// Print the window (channel-major), STFT, DCT and (fitted on the given
+    /// files' windows) PCA of one window of a motion, as JSON.
+    Features {
+        #[arg(long)]
+        motion: PathBuf,
+        #[arg(long, default_value_t = 0)]
+        start: usize,
+        /// Files whose windows (hop 32) the PCA is fitted on.
+        #[arg(long)]
+        pca_on: Vec<PathBuf>,
+    },
     /// Read `{"quats": [[w,x,y,z]...], "orders": ["ZXY", "xyz", ...]}` on stdin;
     /// print every conversion as JSON.
     Rotations,
@@ -219,7 +306,254 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Dev {
             cmd: DevCmd::Rotations,
         } => dev_rotations(),
+        Cmd::Dev {
+            cmd:
+                DevCmd::Features {
+                    motion,
+                    start,
+                    pca_on,
+                },
+        } => dev_features(&motion, start, &pca_on),
+        Cmd::Ingest {
+            paths,
+            db,
+            hop,
+            json,
+        } => runtime()?.block_on(ingest(paths, db, hop, json)),
+        Cmd::Query {
+            db,
+            motion,
+            start,
+            frames,
+            k,
+            embedding,
+            metric,
+            filter,
+            exact,
+            json,
+            read,
+        } => {
+            let embedding = Embedding::parse(&embedding)
+                .with_context(|| format!("--embedding: '{embedding}' is not stft, dct or pca"))?;
+            let metric = Metric::parse(&metric)
+                .with_context(|| format!("--metric: '{metric}' is not cosine or euclidean"))?;
+            let filters = filter
+                .iter()
+                .map(|f| {
+                    f.split_once('=')
+                        .map(|(a, b)| (a.to_string(), b.to_string()))
+                        .with_context(|| format!("--filter: '{f}' is not KIND=VALUE"))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let m = io::read_path(&motion, &read.options())?.motion;
+            let req = QueryRequest {
+                motion: m,
+                start_s: start,
+                frames,
+                k,
+                embedding,
+                metric,
+                filters,
+                exact,
+            };
+            runtime()?.block_on(query(db, req, json))
+        }
+        Cmd::Eval {
+            cmd:
+                EvalCmd::Query {
+                    data,
+                    labels,
+                    embedding,
+                    hop,
+                    k,
+                    json,
+                },
+        } => eval_query(data, labels, embedding, hop, k, json),
     }
+}
+
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?)
+}
+
+async fn ingest(paths: Vec<PathBuf>, db: PathBuf, hop: usize, json: bool) -> Result<()> {
+    if hop == 0 {
+        bail!("--hop must be at least 1");
+    }
+    let store = Store::open(&db).await?;
+    let files = choreo::service::ingest::collect_files(&paths);
+    let bar = indicatif::ProgressBar::new(files.len() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} files, {elapsed} elapsed, eta {eta} {msg}",
+        )
+        .expect("template"),
+    );
+    let opts = IngestOptions {
+        hop,
+        ..Default::default()
+    };
+    let progress = |done: usize, _total: usize, file: &str| {
+        bar.set_position(done as u64);
+        bar.set_message(file.rsplit('/').next().unwrap_or(file).to_string());
+    };
+    let report = choreo::service::ingest::ingest(&store, &paths, &opts, &progress).await?;
+    bar.finish_and_clear();
+    if json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "{} files: {} motions stored ({} windows), {} already stored, {} errors",
+            report.files,
+            report.motions,
+            report.windows,
+            report.skipped,
+            report.errors.len()
+        );
+        for e in &report.errors {
+            println!("  {}: {}", e.file, e.reason);
+        }
+    }
+    Ok(())
+}
+
+async fn query(db: PathBuf, req: QueryRequest, json: bool) -> Result<()> {
+    if !db.exists() {
+        bail!("{}: no such store (run choreo ingest first)", db.display());
+    }
+    let store = Store::open(&db).await?;
+    let searcher = Searcher::open(store, HnswParams::default()).await?;
+    let hits = searcher.query(&req).await?;
+    if json {
+        println!(
+            "{}",
+            json!({"embedding": req.embedding, "metric": req.metric, "hits": hits})
+        );
+    } else {
+        println!("{:>4}  {:>8}  {:>8}  motion", "rank", "score", "start_s");
+        for (i, h) in hits.iter().enumerate() {
+            let labels: Vec<String> = h
+                .labels
+                .iter()
+                .filter(|(k, _)| *k != "corpus")
+                .map(|(k, v)| format!("{k}={v}"))
+                .collect();
+            println!(
+                "{:>4}  {:>8.4}  {:>8.2}  {}  {}",
+                i + 1,
+                h.score,
+                h.start_s,
+                h.source_path,
+                labels.join(" ")
+            );
+        }
+    }
+    Ok(())
+}
+
+fn eval_query(
+    data: Vec<PathBuf>,
+    labels: Vec<String>,
+    embedding: Vec<String>,
+    hop: usize,
+    k: usize,
+    json: bool,
+) -> Result<()> {
+    if data.is_empty() {
+        bail!("--data: give at least one folder or file");
+    }
+    let embeddings: Vec<Embedding> = if embedding.is_empty() {
+        Embedding::ALL.to_vec()
+    } else {
+        embedding
+            .iter()
+            .map(|e| {
+                Embedding::parse(e)
+                    .with_context(|| format!("--embedding: '{e}' is not stft, dct or pca"))
+            })
+            .collect::<Result<_>>()?
+    };
+    let files = choreo::service::ingest::collect_files(&data);
+    let t = std::time::Instant::now();
+    let corpus = eval_q::build_corpus(&files, hop, &embeddings);
+    if corpus.sequence.is_empty() {
+        bail!(
+            "no windows: none of {} files gave a 128-frame window",
+            files.len()
+        );
+    }
+    let rows = eval_q::evaluate(&corpus, &labels, k);
+    if json {
+        println!(
+            "{}",
+            json!({"rows": rows, "sequences": corpus.sequences, "windows": corpus.sequence.len(), "errors": corpus.errors, "seconds": t.elapsed().as_secs_f64()})
+        );
+    } else {
+        println!(
+            "{} sequences, {} windows (128 frames at 60 fps, hop {hop}), k = {k}, same-sequence neighbours excluded",
+            corpus.sequences,
+            corpus.sequence.len()
+        );
+        println!(
+            "{:<6} {:<10} {:<12} {:>9} {:>13} {:>8}",
+            "embed", "metric", "label", "accuracy", "entropy(ban)", "queries"
+        );
+        for r in &rows {
+            println!(
+                "{:<6} {:<10} {:<12} {:>8.1}% {:>13.3} {:>8}",
+                r.embedding.name(),
+                r.metric.name(),
+                r.label,
+                100.0 * r.accuracy,
+                r.entropy_bans,
+                r.queries
+            );
+        }
+        for e in &corpus.errors {
+            println!("unreadable: {e}");
+        }
+    }
+    Ok(())
+}
+
+fn dev_features(motion: &std::path::Path, start: usize, pca_on: &[PathBuf]) -> Result<()> {
+    use choreo::features::*;
+    let m = io::read_path(motion, &ReadOptions::default())?.motion;
+    let ch = channels72(&m)?;
+    if start + WINDOW > ch.len() {
+        bail!(
+            "window {start}..{} past {} frames",
+            start + WINDOW,
+            ch.len()
+        );
+    }
+    let w = window(&ch, start);
+    let ex = Extractor::new(StftParams::default())?;
+    let pca = if pca_on.is_empty() {
+        None
+    } else {
+        let mut wins = Vec::new();
+        for f in pca_on {
+            let c = channels72(&io::read_path(f, &ReadOptions::default())?.motion)?;
+            for s in window_starts(c.len(), 32) {
+                wins.push(window(&c, s));
+            }
+        }
+        Some(Pca::fit(wins.iter().map(|w| w.as_slice()))?)
+    };
+    println!(
+        "{}",
+        json!({
+            "window": w,
+            "stft": ex.stft(&w),
+            "dct": ex.dct(&w),
+            "dct_full": ex.dct_full(&w),
+            "pca": pca.as_ref().map(|p| json!({"mean": p.mean, "components": p.components, "explained_variance": p.explained_variance, "projection": p.project_window(&w)})),
+        })
+    );
+    Ok(())
 }
 
 fn to_joints(m: Motion, j: Joints, joint_map: Option<&std::path::Path>) -> Result<Motion> {

@@ -1,0 +1,237 @@
+//! Ingest: walk paths, read every supported motion file, cut windows, embed
+//! them, and store each file in its own transaction (a crash loses at most
+//! the file in progress). Files already stored (same content hash) are
+//! skipped; a bad file is reported, never fatal. The PCA basis is refitted on
+//! all stored windows afterwards.
+
+use crate::features::pca::PcaAccumulator;
+use crate::features::{
+    channels72, window, window_starts, Embedding, Extractor, Pca, StftParams, WINDOW,
+};
+use crate::motion::io::{read_bytes, ReadOptions};
+use crate::motion::MotionError;
+use crate::store::{NewMotion, NewWindow, Store, StoreError};
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+
+#[derive(Clone, Debug)]
+pub struct IngestOptions {
+    /// Window hop in frames at 60 fps (SPEC default 32).
+    pub hop: usize,
+    pub stft: StftParams,
+    pub read: ReadOptions,
+}
+
+impl Default for IngestOptions {
+    fn default() -> Self {
+        IngestOptions {
+            hop: 32,
+            stft: StftParams::default(),
+            read: ReadOptions::default(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct FileError {
+    pub file: String,
+    pub reason: String,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct IngestReport {
+    pub files: usize,
+    pub motions: usize,
+    pub windows: usize,
+    pub skipped: usize,
+    pub errors: Vec<FileError>,
+}
+
+pub const MOTION_EXTENSIONS: [&str; 4] = ["pkl", "pickle", "npz", "bvh"];
+
+/// Every motion file under the given files/folders, sorted, deduplicated.
+pub fn collect_files(paths: &[PathBuf]) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for p in paths {
+        if p.is_dir() {
+            out.extend(crate::data::files_with_ext(p, &MOTION_EXTENSIONS));
+        } else {
+            out.push(p.clone());
+        }
+    }
+    out.sort();
+    out.dedup();
+    out
+}
+
+pub fn content_hash(bytes: &[u8]) -> String {
+    let d = Sha256::digest(bytes);
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Parse, cut and embed one file (blocking, CPU-heavy).
+pub fn prepare(
+    file: &str,
+    bytes: &[u8],
+    hash: String,
+    opts: &IngestOptions,
+) -> Result<NewMotion, MotionError> {
+    let loaded = read_bytes(file, bytes, &opts.read)?;
+    let m = &loaded.motion;
+    let ch = channels72(m)?;
+    let ex = Extractor::new(opts.stft)?;
+    let windows = window_starts(ch.len(), opts.hop)
+        .into_iter()
+        .map(|s| {
+            let w = window(&ch, s);
+            NewWindow {
+                start_frame: s,
+                frames: WINDOW,
+                embeddings: vec![(Embedding::Stft, ex.stft(&w)), (Embedding::Dct, ex.dct(&w))],
+            }
+        })
+        .collect();
+    Ok(NewMotion {
+        source_path: file.to_string(),
+        content_hash: hash,
+        format: loaded.format.name().to_string(),
+        fps: m.fps,
+        frames: m.frames(),
+        joints: m.joints(),
+        skeleton: m.skeleton.kind.clone(),
+        duration_s: m.duration_s(),
+        labels: m.labels.clone(),
+        channels: ch,
+        windows,
+    })
+}
+
+/// Ingest files and folders. `progress(done, total, file)` is called after
+/// each file.
+pub async fn ingest(
+    store: &Store,
+    paths: &[PathBuf],
+    opts: &IngestOptions,
+    progress: &(dyn Fn(usize, usize, &str) + Sync),
+) -> Result<IngestReport, StoreError> {
+    let files = collect_files(paths);
+    let mut report = IngestReport {
+        files: files.len(),
+        ..Default::default()
+    };
+    for (i, path) in files.iter().enumerate() {
+        let name = path.display().to_string();
+        match ingest_one(store, path, opts).await? {
+            Outcome::Stored(w) => {
+                report.motions += 1;
+                report.windows += w;
+            }
+            Outcome::Skipped => report.skipped += 1,
+            Outcome::Failed(reason) => report.errors.push(FileError {
+                file: name.clone(),
+                reason,
+            }),
+        }
+        progress(i + 1, files.len(), &name);
+    }
+    refresh_pca(store).await?;
+    Ok(report)
+}
+
+enum Outcome {
+    Stored(usize),
+    Skipped,
+    Failed(String),
+}
+
+async fn ingest_one(
+    store: &Store,
+    path: &Path,
+    opts: &IngestOptions,
+) -> Result<Outcome, StoreError> {
+    let name = path.display().to_string();
+    let bytes = match std::fs::metadata(path) {
+        Ok(md) if md.len() > crate::motion::io::MAX_FILE_BYTES => {
+            return Ok(Outcome::Failed(format!(
+                "{name}: {} bytes is over the size limit",
+                md.len()
+            )))
+        }
+        Ok(_) => match std::fs::read(path) {
+            Ok(b) => b,
+            Err(e) => return Ok(Outcome::Failed(format!("{name}: {e}"))),
+        },
+        Err(e) => return Ok(Outcome::Failed(format!("{name}: {e}"))),
+    };
+    let hash = content_hash(&bytes);
+    if store.motion_by_hash(&hash).await?.is_some() {
+        return Ok(Outcome::Skipped);
+    }
+    let opts2 = opts.clone();
+    let name2 = name.clone();
+    let prepared = tokio::task::spawn_blocking(move || prepare(&name2, &bytes, hash, &opts2))
+        .await
+        .map_err(|e| MotionError::invalid(&name, "ingest", format!("worker failed: {e}")));
+    match prepared {
+        Ok(Ok(m)) => {
+            let n = m.windows.len();
+            store.insert_motion(&m).await?;
+            Ok(Outcome::Stored(n))
+        }
+        Ok(Err(e)) | Err(e) => Ok(Outcome::Failed(e.to_string())),
+    }
+}
+
+/// Refit the PCA basis on every stored window when the windows changed since
+/// the last fit, and re-embed all windows with it (one transaction).
+pub async fn refresh_pca(store: &Store) -> Result<Option<Pca>, StoreError> {
+    let fp = store.windows_fingerprint().await?;
+    if let Some((g, body)) = store.model("pca").await? {
+        if g == fp {
+            return Ok(serde_json::from_str(&body).ok());
+        }
+    }
+    let (_, nwin) = store.counts().await?;
+    if nwin == 0 {
+        return Ok(None);
+    }
+    let channels = store.all_channels().await?;
+    let windows = store.windows().await?;
+    let (pca, rows) = tokio::task::spawn_blocking(move || {
+        let by_motion: std::collections::HashMap<i64, &Vec<[f32; 72]>> =
+            channels.iter().map(|(id, c)| (*id, c)).collect();
+        let mut acc = PcaAccumulator::default();
+        for (_, w) in &windows {
+            if let Some(ch) = by_motion.get(&w.motion_id) {
+                acc.add_window(&window(ch, w.start_frame as usize));
+            }
+        }
+        let pca = acc.finish()?;
+        let rows: Vec<(i64, Vec<f32>)> = windows
+            .iter()
+            .filter_map(|(id, w)| {
+                by_motion
+                    .get(&w.motion_id)
+                    .map(|ch| (*id, pca.project_window(&window(ch, w.start_frame as usize))))
+            })
+            .collect();
+        Ok::<_, MotionError>((pca, rows))
+    })
+    .await
+    .map_err(|e| StoreError::Corrupt {
+        path: store.path().display().to_string(),
+        field: "pca".into(),
+        reason: format!("worker failed: {e}"),
+    })?
+    .map_err(|e| StoreError::Corrupt {
+        path: store.path().display().to_string(),
+        field: "pca".into(),
+        reason: e.to_string(),
+    })?;
+    let body = serde_json::to_string(&pca).expect("PCA serialises");
+    store
+        .replace_embeddings(Embedding::Pca, &rows, "pca", &body, fp)
+        .await?;
+    Ok(Some(pca))
+}

@@ -1,0 +1,6 @@
+//! Use cases, one file each. The CLI and (later) the HTTP/gRPC handlers call
+//! these and only translate types.
+
+pub mod eval_query;
+pub mod ingest;
+pub mod query;
