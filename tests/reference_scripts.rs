@@ -62,3 +62,10 @@ fn amass_npz_agrees_with_numpy() {
         run_script("check_amass_npz.py", true);
     }
 }
+
+#[test]
+fn embeddings_agree_with_scipy_and_numpy() {
+    if python_with("numpy, scipy") {
+        run_script("check_features.py", true);
+    }
+}

@@ -192,14 +192,24 @@ impl HnswIndex {
         }
         let dir = base.parent().unwrap_or(Path::new(".")).to_path_buf();
         let io = HnswIo::new(&dir, &meta.dump_basename);
-        let graph = match metric {
-            Metric::Cosine => Graph::LoadedCos(LoadedCos::try_new(io, |io| {
-                io.load_hnsw_with_dist(CosineUnit)
-            })?),
-            Metric::Euclidean => {
-                Graph::LoadedL2(LoadedL2::try_new(io, |io| io.load_hnsw_with_dist(Euclid))?)
-            }
-        };
+        // hnsw_rs unwraps on some corrupt dumps; a panic here means "corrupt".
+        let graph =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> anyhow::Result<Graph> {
+                Ok(match metric {
+                    Metric::Cosine => Graph::LoadedCos(LoadedCos::try_new(io, |io| {
+                        io.load_hnsw_with_dist(CosineUnit)
+                    })?),
+                    Metric::Euclidean => {
+                        Graph::LoadedL2(LoadedL2::try_new(io, |io| io.load_hnsw_with_dist(Euclid))?)
+                    }
+                })
+            }))
+            .map_err(|_| {
+                anyhow::anyhow!(
+                    "index dump {} is corrupt (hnsw_rs could not read it)",
+                    meta.dump_basename
+                )
+            })??;
         let ix = HnswIndex {
             metric,
             dim,

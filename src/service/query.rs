@@ -173,6 +173,7 @@ impl Searcher {
     /// The query windows of a request, as embeddings.
     fn query_vectors(&self, req: &QueryRequest) -> Result<Vec<Vec<f32>>, QueryError> {
         let name = req.motion.name.clone();
+        req.motion.validate()?;
         if req.k == 0 || req.k > 1000 {
             return Err(
                 MotionError::invalid(&name, "k", format!("{} is not in 1..=1000", req.k)).into(),

@@ -1,0 +1,206 @@
+//! Archive search end to end on fixtures built here: ingest (idempotent, bad
+//! files reported), query (self-match, filters, HNSW = exact), index
+//! staleness and corruption, bad queries.
+
+use choreo::features::Embedding;
+use choreo::index::hnsw::HnswParams;
+use choreo::index::Metric;
+use choreo::motion::io::amass::write_amass_npz;
+use choreo::motion::{Labels, Motion, Skeleton};
+use choreo::service::ingest::{ingest, IngestOptions};
+use choreo::service::query::{QueryRequest, Searcher};
+use choreo::store::Store;
+use std::path::Path;
+
+/// An SMPL clip whose arms and legs swing at `freq` Hz with a phase.
+fn clip(name: &str, frames: usize, freq: f64, phase: f64, style: &str) -> Motion {
+    let mut rots = vec![[0.0; 3]; frames * 24];
+    let mut trans = Vec::new();
+    for f in 0..frames {
+        let t = f as f64 / 60.0;
+        let s = (2.0 * std::f64::consts::PI * freq * t + phase).sin();
+        rots[f * 24 + 1] = [0.6 * s, 0.0, 0.1];
+        rots[f * 24 + 2] = [-0.6 * s, 0.0, -0.1];
+        rots[f * 24 + 16] = [0.0, 0.0, -1.0 + 0.5 * s];
+        rots[f * 24 + 17] = [0.0, 0.0, 1.0 - 0.5 * s];
+        rots[f * 24 + 4] = [0.4 * (1.0 + s), 0.0, 0.0];
+        trans.push([0.0, 0.9, 0.3 * t]);
+    }
+    let labels: Labels = [("style".to_string(), style.to_string())]
+        .into_iter()
+        .collect();
+    Motion::new(name, 60.0, Skeleton::smpl24(), trans, rots, labels).unwrap()
+}
+
+fn write(dir: &Path, m: &Motion) {
+    std::fs::write(
+        dir.join(format!("{}.npz", m.name)),
+        write_amass_npz(m).unwrap(),
+    )
+    .unwrap();
+}
+
+fn req(m: &Motion, start_s: f64, e: Embedding, metric: Metric) -> QueryRequest {
+    QueryRequest {
+        motion: m.clone(),
+        start_s,
+        frames: 128,
+        k: 5,
+        embedding: e,
+        metric,
+        filters: vec![],
+        exact: false,
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ingest_query_filters_staleness_and_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let files = dir.path().join("files");
+    std::fs::create_dir(&files).unwrap();
+    // Bandai-style names carry the labels (content, style).
+    let slow = clip("dataset-1_swing_calm_001", 600, 0.5, 0.0, "calm");
+    let fast = clip("dataset-1_swing_wild_001", 600, 3.0, 0.3, "wild");
+    let mid = clip("dataset-1_sway_calm_002", 400, 1.5, 1.0, "calm");
+    for m in [&slow, &fast, &mid] {
+        write(&files, m);
+    }
+    std::fs::write(files.join("broken.bvh"), "HIERARCHY\nROOT x {").unwrap();
+    std::fs::write(
+        files.join("short.npz"),
+        write_amass_npz(&clip("short", 60, 1.0, 0.0, "calm")).unwrap(),
+    )
+    .unwrap();
+    let db = dir.path().join("t.db");
+    let store = Store::open(&db).await.unwrap();
+    let noop = |_: usize, _: usize, _: &str| {};
+    let r = ingest(&store, &[files.clone()], &IngestOptions::default(), &noop)
+        .await
+        .unwrap();
+    assert_eq!(r.files, 5);
+    assert_eq!(r.motions, 4, "{r:?}");
+    assert_eq!(r.errors.len(), 1);
+    assert!(r.errors[0].file.ends_with("broken.bvh") && r.errors[0].reason.contains("broken.bvh"));
+    // (600-128)/32+1 = 15 windows twice, (400-128)/32+1 = 9, short clip none.
+    assert_eq!(r.windows, 15 + 15 + 9);
+    // Idempotent.
+    let again = ingest(&store, &[files.clone()], &IngestOptions::default(), &noop)
+        .await
+        .unwrap();
+    assert_eq!((again.motions, again.skipped), (0, 4));
+
+    let s = Searcher::open(store.clone(), HnswParams::default())
+        .await
+        .unwrap();
+    for e in Embedding::ALL {
+        for metric in Metric::ALL {
+            // A window of `fast` finds itself first.
+            let hits = s.query(&req(&fast, 64.0 / 60.0, e, metric)).await.unwrap();
+            assert!(
+                hits[0].source_path.ends_with("swing_wild_001.npz"),
+                "{e:?} {metric:?}: {hits:?}"
+            );
+            assert_eq!(hits[0].start_frame, 64);
+            if metric == Metric::Cosine {
+                assert!((hits[0].score - 1.0).abs() < 1e-4, "{}", hits[0].score);
+            } else {
+                assert!(hits[0].score.abs() < 1e-2, "{}", hits[0].score);
+            }
+            // HNSW equals exact on this small store.
+            let mut ex = req(&fast, 64.0 / 60.0, e, metric);
+            ex.exact = true;
+            let exact = s.query(&ex).await.unwrap();
+            // (Periodic fixtures tie, so compare the ranked scores.)
+            assert_eq!(hits.len(), exact.len());
+            for (a, b) in hits.iter().zip(&exact) {
+                assert!(
+                    (a.score - b.score).abs() < 1e-4,
+                    "{e:?} {metric:?}: {hits:?} vs {exact:?}"
+                );
+            }
+        }
+    }
+    // Filters: only calm motions.
+    let mut f = req(&fast, 0.0, Embedding::Dct, Metric::Cosine);
+    f.filters = vec![("style".into(), "calm".into())];
+    let hits = s.query(&f).await.unwrap();
+    assert_eq!(hits.len(), 5);
+    assert!(hits.iter().all(|h| h.labels["style"] == "calm"));
+    // A longer segment queries several windows.
+    let mut long = req(&slow, 1.0, Embedding::Stft, Metric::Cosine);
+    long.frames = 300;
+    assert!(s.query(&long).await.unwrap()[0]
+        .source_path
+        .ends_with("swing_calm_001.npz"));
+
+    // Bad queries name the field.
+    let short = clip("q", 100, 1.0, 0.0, "calm");
+    let e = s
+        .query(&req(&short, 0.0, Embedding::Dct, Metric::Cosine))
+        .await
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("frames") && e.contains("past"), "{e}");
+    let mut nan = fast.clone();
+    nan.rotations[10][0] = f64::NAN;
+    let e = s
+        .query(&req(&nan, 0.0, Embedding::Dct, Metric::Cosine))
+        .await
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("rotations") && e.contains("NaN"), "{e}");
+    let alien = Motion::new(
+        "alien",
+        60.0,
+        Skeleton::new(
+            "custom",
+            vec!["Root".into()],
+            vec![None],
+            vec![[0.0; 3]],
+            vec![],
+        )
+        .unwrap(),
+        vec![[0.0; 3]; 200],
+        vec![[0.0; 3]; 200],
+        Labels::new(),
+    )
+    .unwrap();
+    let e = s
+        .query(&req(&alien, 0.0, Embedding::Dct, Metric::Cosine))
+        .await
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("joint map") || e.contains("Left_Hip"), "{e}");
+    let mut k0 = req(&fast, 0.0, Embedding::Dct, Metric::Cosine);
+    k0.k = 0;
+    assert!(s.query(&k0).await.unwrap_err().to_string().contains("k"));
+
+    // The index was saved; after another ingest it is stale and rebuilt with
+    // the new windows; a corrupt dump is rebuilt too.
+    let base = format!("{}.dct-cosine", db.display());
+    assert!(Path::new(&format!("{base}.meta.json")).exists());
+    let extra = dir.path().join("extra");
+    std::fs::create_dir(&extra).unwrap();
+    let newer = clip("newer", 300, 2.2, 2.0, "wild");
+    write(&extra, &newer);
+    ingest(&store, &[extra], &IngestOptions::default(), &noop)
+        .await
+        .unwrap();
+    let s2 = Searcher::open(store.clone(), HnswParams::default())
+        .await
+        .unwrap();
+    let hits = s2
+        .query(&req(&newer, 32.0 / 60.0, Embedding::Dct, Metric::Cosine))
+        .await
+        .unwrap();
+    assert!(hits[0].source_path.ends_with("newer.npz"), "{hits:?}");
+    std::fs::write(format!("{base}.hnsw.graph"), b"garbage").unwrap();
+    let s3 = Searcher::open(store.clone(), HnswParams::default())
+        .await
+        .unwrap();
+    let hits = s3
+        .query(&req(&newer, 32.0 / 60.0, Embedding::Dct, Metric::Cosine))
+        .await
+        .unwrap();
+    assert!(hits[0].source_path.ends_with("newer.npz"));
+}
