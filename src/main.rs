@@ -162,6 +162,11 @@ enum Cmd {
         #[command(flatten)]
         read: ReadArgs,
     },
+    /// Benchmarks whose figures go to bench/RESULTS.md.
+    Bench {
+        #[command(subcommand)]
+        cmd: BenchCmd,
+    },
     /// Evaluations that reproduce the theses' tables.
     Eval {
         #[command(subcommand)]
@@ -172,6 +177,36 @@ enum Cmd {
     Dev {
         #[command(subcommand)]
         cmd: DevCmd,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCmd {
+    /// Exact vs HNSW on synthetic vectors (16-d latent lifted to --dim):
+    /// build time, query latency p50/p95, QPS, recall@10 against exact.
+    Index {
+        #[arg(long, value_delimiter = ',', default_value = "10000,100000")]
+        sizes: Vec<usize>,
+        #[arg(long, default_value_t = 1152)]
+        dim: usize,
+        #[arg(long, default_value_t = 200)]
+        queries: usize,
+        #[arg(long, default_value = "cosine")]
+        metric: String,
+        /// Also write base_N.npy, queries.npy and gt_N.npy (exact top-10
+        /// ids) here, for scripts/bench_faiss.py.
+        #[arg(long)]
+        dump: Option<PathBuf>,
+        #[arg(long, default_value_t = 128)]
+        ef_search: usize,
+    },
+    /// Embedding throughput (windows/s) on the real windows of a corpus.
+    Embed {
+        #[arg(long)]
+        data: Vec<PathBuf>,
+        /// Write the windows as windows.npy here (for scripts/bench_embed.py).
+        #[arg(long)]
+        dump: Option<PathBuf>,
     },
 }
 
@@ -358,6 +393,23 @@ fn run(cli: Cli) -> Result<()> {
             };
             runtime()?.block_on(query(db, req, json))
         }
+        Cmd::Bench {
+            cmd:
+                BenchCmd::Index {
+                    sizes,
+                    dim,
+                    queries,
+                    metric,
+                    dump,
+                    ef_search,
+                },
+        } => {
+            let metric = Metric::parse(&metric).with_context(|| format!("--metric: '{metric}'"))?;
+            bench_index(&sizes, dim, queries, metric, dump.as_deref(), ef_search)
+        }
+        Cmd::Bench {
+            cmd: BenchCmd::Embed { data, dump },
+        } => bench_embed(&data, dump.as_deref()),
         Cmd::Eval {
             cmd:
                 EvalCmd::Query {
@@ -515,6 +567,149 @@ fn eval_query(
             println!("unreadable: {e}");
         }
     }
+    Ok(())
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    sorted[((sorted.len() as f64 - 1.0) * p).round() as usize]
+}
+
+fn write_npy_f32(path: &std::path::Path, rows: &[Vec<f32>]) -> Result<()> {
+    let a = choreo::motion::io::npy::NdArray {
+        shape: vec![rows.len(), rows.first().map_or(0, |r| r.len())],
+        data: rows
+            .iter()
+            .flat_map(|r| r.iter().map(|&x| x as f64))
+            .collect(),
+    };
+    std::fs::write(path, a.to_npy(true)).with_context(|| path.display().to_string())
+}
+
+fn bench_index(
+    sizes: &[usize],
+    dim: usize,
+    nq: usize,
+    metric: Metric,
+    dump: Option<&std::path::Path>,
+    ef_search: usize,
+) -> Result<()> {
+    use choreo::index::hnsw::HnswIndex;
+    use choreo::index::{recall, synthetic_latent, AnnIndex, ExactIndex};
+    use std::time::Instant;
+    let queries = synthetic_latent(nq, dim, 99);
+    if let Some(d) = dump {
+        std::fs::create_dir_all(d)?;
+        write_npy_f32(&d.join("queries.npy"), &queries)?;
+    }
+    for &n in sizes {
+        let t = Instant::now();
+        let data = synthetic_latent(n, dim, 1);
+        let gen_s = t.elapsed().as_secs_f64();
+        let items: Vec<(usize, Vec<f32>)> = data.into_iter().enumerate().collect();
+        let mut exact = ExactIndex::new(metric, dim);
+        for (i, v) in &items {
+            exact.add(*i, v);
+        }
+        let mut lat_e = Vec::new();
+        let mut truth = Vec::new();
+        for q in &queries {
+            let t = Instant::now();
+            truth.push(exact.search(q, 10, None));
+            lat_e.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        drop(exact);
+        if let Some(d) = dump {
+            write_npy_f32(
+                &d.join(format!("base_{n}.npy")),
+                &items.iter().map(|(_, v)| v.clone()).collect::<Vec<_>>(),
+            )?;
+            let gt: Vec<Vec<f32>> = truth
+                .iter()
+                .map(|h| h.iter().map(|x| x.id as f32).collect())
+                .collect();
+            write_npy_f32(&d.join(format!("gt_{n}.npy")), &gt)?;
+        }
+        let t = Instant::now();
+        let params = HnswParams {
+            ef_search,
+            ..Default::default()
+        };
+        let mut h = HnswIndex::new(metric, dim, n, params);
+        h.add_batch(&items);
+        let build_s = t.elapsed().as_secs_f64();
+        drop(items);
+        let mut lat_h = Vec::new();
+        let mut rec = 0.0;
+        for (q, tr) in queries.iter().zip(&truth) {
+            let t = Instant::now();
+            let r = h.search(q, 10, None);
+            lat_h.push(t.elapsed().as_secs_f64() * 1e3);
+            rec += recall(tr, &r);
+        }
+        for l in [&mut lat_e, &mut lat_h] {
+            l.sort_by(f64::total_cmp);
+        }
+        let qps = |l: &[f64]| 1e3 * l.len() as f64 / l.iter().sum::<f64>();
+        println!(
+            "{}",
+            json!({
+                "n": n, "dim": dim, "metric": metric, "queries": nq, "generate_s": gen_s,
+                "exact": {"p50_ms": percentile(&lat_e, 0.5), "p95_ms": percentile(&lat_e, 0.95), "qps_1thread": qps(&lat_e)},
+                "hnsw": {"m": params.m, "ef_construction": params.ef_construction, "ef_search": ef_search, "build_s": build_s,
+                         "p50_ms": percentile(&lat_h, 0.5), "p95_ms": percentile(&lat_h, 0.95), "qps_1thread": qps(&lat_h),
+                         "recall_at_10": rec / nq as f64},
+            })
+        );
+    }
+    Ok(())
+}
+
+fn bench_embed(data: &[PathBuf], dump: Option<&std::path::Path>) -> Result<()> {
+    use choreo::features::*;
+    use std::time::Instant;
+    let files = choreo::service::ingest::collect_files(data);
+    let mut wins = Vec::new();
+    for f in &files {
+        let c = channels72(&io::read_path(f, &ReadOptions::default())?.motion)?;
+        for s in window_starts(c.len(), 32) {
+            wins.push(window(&c, s));
+        }
+    }
+    if wins.is_empty() {
+        bail!("no windows in {} files", files.len());
+    }
+    if let Some(d) = dump {
+        std::fs::create_dir_all(d)?;
+        write_npy_f32(&d.join("windows.npy"), &wins)?;
+    }
+    let ex = Extractor::new(StftParams::default())?;
+    let mut out = serde_json::Map::new();
+    for e in [Embedding::Stft, Embedding::Dct] {
+        let t = Instant::now();
+        let mut sink = 0.0f32;
+        for w in &wins {
+            sink += ex.embed(e, w, None)?[0];
+        }
+        let s = t.elapsed().as_secs_f64();
+        out.insert(
+            e.name().into(),
+            json!({"windows_per_s": wins.len() as f64 / s, "seconds": s, "check": sink}),
+        );
+    }
+    let t = Instant::now();
+    let p = Pca::fit(wins.iter().map(|w| w.as_slice()))?;
+    let fit_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let mut sink = 0.0f32;
+    for w in &wins {
+        sink += p.project_window(w)[0];
+    }
+    let s = t.elapsed().as_secs_f64();
+    out.insert("pca".into(), json!({"fit_s": fit_s, "windows_per_s": wins.len() as f64 / s, "seconds": s, "check": sink}));
+    println!(
+        "{}",
+        json!({"windows": wins.len(), "threads": 1, "results": out})
+    );
     Ok(())
 }
 

@@ -290,25 +290,9 @@ impl AnnIndex for HnswIndex {
 mod tests {
     use super::super::ExactIndex;
     use super::*;
-    use rand::{Rng, SeedableRng};
 
-    /// Vectors on a 16-dimensional latent space (as spectral embeddings of
-    /// motion are) lifted to `dim`, plus a little noise.
-    pub fn latent(n: usize, dim: usize, seed: u64) -> Vec<Vec<f32>> {
-        let mut rng = rand::rngs::StdRng::seed_from_u64(1234);
-        let lift: Vec<f32> = (0..16 * dim).map(|_| rng.gen_range(-1.0..1.0)).collect();
-        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-        (0..n)
-            .map(|_| {
-                let z: Vec<f32> = (0..16).map(|_| rng.gen_range(-1.0..1.0)).collect();
-                (0..dim)
-                    .map(|d| {
-                        (0..16).map(|k| z[k] * lift[k * dim + d]).sum::<f32>()
-                            + rng.gen_range(-0.05..0.05)
-                    })
-                    .collect()
-            })
-            .collect()
+    fn latent(n: usize, dim: usize, seed: u64) -> Vec<Vec<f32>> {
+        super::super::synthetic_latent(n, dim, seed)
     }
 
     /// HNSW agrees with exact search: recall@10 ≥ 0.98 on 3,000 vectors of
