@@ -8,6 +8,21 @@
 //! - [`features`] — pure: STFT / DCT / PCA window embeddings.
 //! - [`index`] — `AnnIndex`: exact (the oracle) and HNSW, cosine or Euclidean.
 
+//!
+//! Reading a motion and asking where its joints are:
+//!
+//! ```
+//! use choreo::motion::{Labels, Motion, Skeleton};
+//! // One frame of the SMPL body at rest, pelvis 0.9 m above the origin.
+//! let sk = Skeleton::smpl24();
+//! let trans = vec![[0.0, 0.9 - sk.offsets[0][1], 0.0]];
+//! let m = Motion::new("rest", 60.0, sk, trans, vec![[0.0; 3]; 24], Labels::new()).unwrap();
+//! let p = m.positions(); // [frames][joints] metres
+//! assert!((p[0][1] - 0.9).abs() < 1e-12);
+//! // The head is above the pelvis, the ankles below it.
+//! assert!(p[15][1] > p[0][1] && p[7][1] < p[0][1]);
+//! ```
+
 pub mod data;
 pub mod features;
 pub mod index;
