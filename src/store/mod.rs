@@ -218,16 +218,9 @@ impl Store {
                 .await
                 .map_err(|e| self.db(e))?;
             for (kind, v) in &w.embeddings {
-                sqlx::query(
-                    "INSERT INTO embeddings (window_id, kind, dim, vector) VALUES (?, ?, ?, ?)",
-                )
-                .bind(wid)
-                .bind(kind.name())
-                .bind(v.len() as i64)
-                .bind(f32s_to_blob(v))
-                .execute(&mut *tx)
-                .await
-                .map_err(|e| self.db(e))?;
+                insert_embedding(&mut tx, wid, *kind, v)
+                    .await
+                    .map_err(|e| self.db(e))?;
             }
         }
         bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
@@ -399,16 +392,9 @@ impl Store {
             .await
             .map_err(|e| self.db(e))?;
         for (id, v) in rows {
-            sqlx::query(
-                "INSERT INTO embeddings (window_id, kind, dim, vector) VALUES (?, ?, ?, ?)",
-            )
-            .bind(id)
-            .bind(kind.name())
-            .bind(v.len() as i64)
-            .bind(f32s_to_blob(v))
-            .execute(&mut *tx)
-            .await
-            .map_err(|e| self.db(e))?;
+            insert_embedding(&mut tx, *id, kind, v)
+                .await
+                .map_err(|e| self.db(e))?;
         }
         sqlx::query("INSERT INTO models (name, generation, body) VALUES (?, ?, ?) ON CONFLICT(name) DO UPDATE SET generation = excluded.generation, body = excluded.body")
             .bind(model_name)
@@ -450,6 +436,22 @@ impl Store {
             .map_err(|e| self.db(e))?;
         Ok(n * 1_000_000_007 + max.unwrap_or(0))
     }
+}
+
+async fn insert_embedding(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    window_id: i64,
+    kind: Embedding,
+    v: &[f32],
+) -> std::result::Result<(), sqlx::Error> {
+    sqlx::query("INSERT INTO embeddings (window_id, kind, dim, vector) VALUES (?, ?, ?, ?)")
+        .bind(window_id)
+        .bind(kind.name())
+        .bind(v.len() as i64)
+        .bind(f32s_to_blob(v))
+        .execute(&mut **tx)
+        .await?;
+    Ok(())
 }
 
 async fn bump_generation(
