@@ -130,6 +130,9 @@ enum Cmd {
         /// Window hop in frames at 60 fps.
         #[arg(long, default_value_t = 32)]
         hop: usize,
+        /// KIND=VALUE added to every motion ingested now (repeatable).
+        #[arg(long)]
+        label: Vec<String>,
         #[arg(long)]
         json: bool,
     },
@@ -353,8 +356,12 @@ fn run(cli: Cli) -> Result<()> {
             paths,
             db,
             hop,
+            label,
             json,
-        } => runtime()?.block_on(ingest(paths, db, hop, json)),
+        } => {
+            let labels = parse_pairs("--label", &label)?.into_iter().collect();
+            runtime()?.block_on(ingest(paths, db, hop, labels, json))
+        }
         Cmd::Query {
             db,
             motion,
@@ -372,14 +379,7 @@ fn run(cli: Cli) -> Result<()> {
                 .with_context(|| format!("--embedding: '{embedding}' is not stft, dct or pca"))?;
             let metric = Metric::parse(&metric)
                 .with_context(|| format!("--metric: '{metric}' is not cosine or euclidean"))?;
-            let filters = filter
-                .iter()
-                .map(|f| {
-                    f.split_once('=')
-                        .map(|(a, b)| (a.to_string(), b.to_string()))
-                        .with_context(|| format!("--filter: '{f}' is not KIND=VALUE"))
-                })
-                .collect::<Result<Vec<_>>>()?;
+            let filters = parse_pairs("--filter", &filter)?;
             let m = io::read_path(&motion, &read.options())?.motion;
             let req = QueryRequest {
                 motion: m,
@@ -430,7 +430,25 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
         .build()?)
 }
 
-async fn ingest(paths: Vec<PathBuf>, db: PathBuf, hop: usize, json: bool) -> Result<()> {
+fn parse_pairs(flag: &str, items: &[String]) -> Result<Vec<(String, String)>> {
+    items
+        .iter()
+        .map(|f| {
+            f.split_once('=')
+                .filter(|(a, b)| !a.is_empty() && !b.is_empty())
+                .map(|(a, b)| (a.to_string(), b.to_string()))
+                .with_context(|| format!("{flag}: '{f}' is not KIND=VALUE"))
+        })
+        .collect()
+}
+
+async fn ingest(
+    paths: Vec<PathBuf>,
+    db: PathBuf,
+    hop: usize,
+    extra_labels: choreo::motion::Labels,
+    json: bool,
+) -> Result<()> {
     if hop == 0 {
         bail!("--hop must be at least 1");
     }
@@ -445,6 +463,7 @@ async fn ingest(paths: Vec<PathBuf>, db: PathBuf, hop: usize, json: bool) -> Res
     );
     let opts = IngestOptions {
         hop,
+        extra_labels,
         ..Default::default()
     };
     let progress = |done: usize, _total: usize, file: &str| {

@@ -9,7 +9,7 @@ use crate::features::{
     channels72, window, window_starts, Embedding, Extractor, Pca, StftParams, WINDOW,
 };
 use crate::motion::io::{read_bytes, ReadOptions};
-use crate::motion::MotionError;
+use crate::motion::{Labels, MotionError};
 use crate::store::{NewMotion, NewWindow, Store, StoreError};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
@@ -21,6 +21,9 @@ pub struct IngestOptions {
     pub hop: usize,
     pub stft: StftParams,
     pub read: ReadOptions,
+    /// Labels added to every motion of this ingest (e.g. `dancer=anna`,
+    /// `rehearsal=2026-11-20`); they override labels parsed from names.
+    pub extra_labels: Labels,
 }
 
 impl Default for IngestOptions {
@@ -29,6 +32,7 @@ impl Default for IngestOptions {
             hop: 32,
             stft: StftParams::default(),
             read: ReadOptions::default(),
+            extra_labels: Labels::new(),
         }
     }
 }
@@ -101,7 +105,11 @@ pub fn prepare(
         joints: m.joints(),
         skeleton: m.skeleton.kind.clone(),
         duration_s: m.duration_s(),
-        labels: m.labels.clone(),
+        labels: {
+            let mut l = m.labels.clone();
+            l.extend(opts.extra_labels.clone());
+            l
+        },
         channels: ch,
         windows,
     })
