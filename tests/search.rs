@@ -183,9 +183,13 @@ async fn ingest_query_filters_staleness_and_errors() {
     std::fs::create_dir(&extra).unwrap();
     let newer = clip("newer", 300, 2.2, 2.0, "wild");
     write(&extra, &newer);
-    ingest(&store, &[extra], &IngestOptions::default(), &noop)
-        .await
-        .unwrap();
+    let tagged = IngestOptions {
+        extra_labels: [("session".to_string(), "late".to_string())]
+            .into_iter()
+            .collect(),
+        ..Default::default()
+    };
+    ingest(&store, &[extra], &tagged, &noop).await.unwrap();
     let s2 = Searcher::open(store.clone(), HnswParams::default())
         .await
         .unwrap();
@@ -194,6 +198,11 @@ async fn ingest_query_filters_staleness_and_errors() {
         .await
         .unwrap();
     assert!(hits[0].source_path.ends_with("newer.npz"), "{hits:?}");
+    // Labels given at ingest filter too.
+    let mut late = req(&fast, 0.0, Embedding::Dct, Metric::Cosine);
+    late.filters = vec![("session".into(), "late".into())];
+    let hits = s2.query(&late).await.unwrap();
+    assert!(!hits.is_empty() && hits.iter().all(|h| h.source_path.ends_with("newer.npz")));
     std::fs::write(format!("{base}.hnsw.graph"), b"garbage").unwrap();
     let s3 = Searcher::open(store.clone(), HnswParams::default())
         .await
