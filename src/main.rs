@@ -165,6 +165,35 @@ enum Cmd {
         #[command(flatten)]
         read: ReadArgs,
     },
+    /// Move INPUT's low-frequency features toward TARGET's by gradient
+    /// descent (Adam) and write the result (thesis 000 §3.5).
+    Interpolate {
+        #[arg(long)]
+        input: PathBuf,
+        #[arg(long)]
+        target: PathBuf,
+        /// Band [LO, HI) in coefficients of a 128-frame DCT (0:8 = 0–1.875 Hz).
+        #[arg(long, default_value = "0:8", value_parser = parse_range)]
+        band: (usize, usize),
+        #[arg(long, default_value = "dct")]
+        objective: String,
+        #[arg(long, default_value_t = 300)]
+        steps: usize,
+        #[arg(long, default_value_t = 0.02)]
+        lr: f64,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Zero every DCT coefficient at or above CUTOFF (128-frame units) along time.
+    Lowpass {
+        input: PathBuf,
+        #[arg(long)]
+        cutoff: usize,
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Benchmarks whose figures go to bench/RESULTS.md.
     Bench {
         #[command(subcommand)]
@@ -393,6 +422,34 @@ fn run(cli: Cli) -> Result<()> {
             };
             runtime()?.block_on(query(db, req, json))
         }
+        Cmd::Interpolate {
+            input,
+            target,
+            band,
+            objective,
+            steps,
+            lr,
+            out,
+            json,
+        } => {
+            let objective = Embedding::parse(&objective)
+                .with_context(|| format!("--objective: '{objective}' is not dct, stft or pca"))?;
+            interpolate_cmd(&input, &target, band, objective, steps, lr, &out, json)
+        }
+        Cmd::Lowpass { input, cutoff, out } => {
+            use choreo::features::interpolate::{lowpass, to_f64};
+            use choreo::features::{rows72, smpl24_at_60};
+            let m = smpl24_at_60(&io::read_path(&input, &ReadOptions::default())?.motion)?;
+            let filtered = lowpass(&to_f64(&rows72(&m)), cutoff).map_err(|e| e.in_file(&m.name))?;
+            let result = with_channels(&m, &filtered);
+            io::write_path(&result, &out, &bvh::BvhWriteOptions::default())?;
+            eprintln!(
+                "wrote {} ({} frames at 60 fps)",
+                out.display(),
+                result.frames()
+            );
+            Ok(())
+        }
         Cmd::Bench {
             cmd:
                 BenchCmd::Index {
@@ -585,6 +642,94 @@ fn eval_query(
         for e in &corpus.errors {
             println!("unreadable: {e}");
         }
+    }
+    Ok(())
+}
+
+/// An SMPL-24 motion with its rotations replaced by a `[frames][72]` matrix
+/// (translation kept, cut to the matrix's length).
+fn with_channels(m: &Motion, ch: &[[f64; 72]]) -> Motion {
+    let n = ch.len().min(m.frames());
+    let rots = ch[..n]
+        .iter()
+        .flat_map(|r| (0..24).map(move |j| [r[3 * j], r[3 * j + 1], r[3 * j + 2]]))
+        .collect();
+    m.with_data(m.trans[..n].to_vec(), rots)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn interpolate_cmd(
+    input: &std::path::Path,
+    target: &std::path::Path,
+    band: (usize, usize),
+    objective: Embedding,
+    steps: usize,
+    lr: f64,
+    out: &std::path::Path,
+    as_json: bool,
+) -> Result<()> {
+    use choreo::features::interpolate::{interpolate, mean_jerk, to_f64, InterpolateOptions};
+    use choreo::features::{rows72, smpl24_at_60, window, window_starts, Extractor, StftParams};
+    let a = smpl24_at_60(&io::read_path(input, &ReadOptions::default())?.motion)?;
+    let b = smpl24_at_60(&io::read_path(target, &ReadOptions::default())?.motion)?;
+    let t = std::time::Instant::now();
+    let opts = InterpolateOptions {
+        objective,
+        band,
+        steps,
+        learning_rate: lr,
+    };
+    let r = interpolate(&to_f64(&rows72(&a)), &to_f64(&rows72(&b)), &opts)?;
+    let seconds = t.elapsed().as_secs_f64();
+    let n = r.frames;
+    let o = with_channels(&a, &r.output);
+    let i = a.cut(0, n)?;
+    let tg = b.cut(0, n)?;
+    // Table 3.3's columns: cosine similarity of the STFT embeddings (all
+    // windows, hop 32, concatenated).
+    let ex = Extractor::new(StftParams::default())?;
+    let stft_all = |m: &Motion| -> Vec<f32> {
+        let ch = rows72(m);
+        window_starts(ch.len(), 32)
+            .into_iter()
+            .flat_map(|s| ex.stft(&window(&ch, s)))
+            .collect()
+    };
+    let (vi, vo, vt) = (stft_all(&i), stft_all(&o), stft_all(&tg));
+    let cos = |x: &[f32], y: &[f32]| {
+        let d = choreo::index::dot(x, y) as f64;
+        d / ((choreo::index::dot(x, x) as f64).sqrt() * (choreo::index::dot(y, y) as f64).sqrt())
+            .max(1e-30)
+    };
+    let jitter = |m: &Motion| mean_jerk(&m.positions(), m.joints(), m.fps);
+    io::write_path(&o, out, &bvh::BvhWriteOptions::default())?;
+    let report = json!({
+        "similarity": {"o_t": cos(&vo, &vt), "i_o": cos(&vi, &vo), "i_t": cos(&vi, &vt)},
+        "jitter": {"input": jitter(&i), "output": jitter(&o), "target": jitter(&tg)},
+        "loss": r.loss,
+        "steps": r.steps,
+        "seconds": seconds,
+        "frames": n,
+        "objective": objective,
+        "band": [band.0, band.1],
+    });
+    if as_json {
+        println!("{report}");
+    } else {
+        println!(
+            "{}: O→T {:.4}, I→O {:.4}, I→T {:.4}; jerk input {:.1}, output {:.1} m/s³; loss {:.3e} → {:.3e} in {} steps, {:.2} s; wrote {}",
+            objective.name(),
+            report["similarity"]["o_t"].as_f64().unwrap_or(0.0),
+            report["similarity"]["i_o"].as_f64().unwrap_or(0.0),
+            report["similarity"]["i_t"].as_f64().unwrap_or(0.0),
+            report["jitter"]["input"].as_f64().unwrap_or(0.0),
+            report["jitter"]["output"].as_f64().unwrap_or(0.0),
+            r.loss[0],
+            r.loss[r.loss.len() - 1],
+            r.steps,
+            seconds,
+            out.display()
+        );
     }
     Ok(())
 }

@@ -12,6 +12,7 @@
 //! - PCA: 16 components fitted on the per-channel 128-sample series of the
 //!   indexed windows; each channel's series projected → 1,152.
 
+pub mod interpolate;
 pub mod pca;
 
 use crate::motion::retarget::{retarget_to_smpl13, JointMap};
@@ -98,10 +99,10 @@ impl StftParams {
     }
 }
 
-/// The canonical channel matrix of a motion: `[frames][72]` f32 at 60 fps,
-/// SMPL-24 local axis-angle. Non-SMPL skeletons are retargeted (built-in
-/// joint map) onto the 13-joint subset; dropped joints stay at rest (zero).
-pub fn channels72(m: &Motion) -> Result<Vec<[f32; CHANNELS]>, MotionError> {
+/// A motion as SMPL-24 at 60 fps: SMPL-13 is expanded (dropped joints at
+/// rest), other skeletons are retargeted (built-in joint map) onto the
+/// 13-joint subset first.
+pub fn smpl24_at_60(m: &Motion) -> Result<Motion, MotionError> {
     let smpl = match m.skeleton.kind.as_str() {
         "smpl24" => m.clone(),
         "smpl13" => m.smpl13_to_smpl24()?,
@@ -111,8 +112,12 @@ pub fn channels72(m: &Motion) -> Result<Vec<[f32; CHANNELS]>, MotionError> {
             retarget_to_smpl13(m, &map)?.smpl13_to_smpl24()?
         }
     };
-    let smpl = smpl.resample(FEATURE_FPS)?;
-    Ok((0..smpl.frames())
+    smpl.resample(FEATURE_FPS)
+}
+
+/// The rows of an SMPL-24 motion's rotations as `[frames][72]` f32.
+pub fn rows72(smpl: &Motion) -> Vec<[f32; CHANNELS]> {
+    (0..smpl.frames())
         .map(|f| {
             let mut row = [0f32; CHANNELS];
             for (j, r) in smpl.frame_rotations(f).iter().enumerate() {
@@ -122,7 +127,13 @@ pub fn channels72(m: &Motion) -> Result<Vec<[f32; CHANNELS]>, MotionError> {
             }
             row
         })
-        .collect())
+        .collect()
+}
+
+/// The canonical channel matrix of a motion: `[frames][72]` f32 at 60 fps,
+/// SMPL-24 local axis-angle (see [`smpl24_at_60`]).
+pub fn channels72(m: &Motion) -> Result<Vec<[f32; CHANNELS]>, MotionError> {
+    Ok(rows72(&smpl24_at_60(m)?))
 }
 
 /// Window start frames for `frames` frames: `0, hop, 2·hop, …` while a whole
