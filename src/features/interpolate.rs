@@ -104,7 +104,20 @@ impl Dct {
     }
 }
 
-fn column(x: &Channels, c: usize) -> Vec<f64> {
+/// Apply `f` to every channel's time series (in place on a copy).
+fn map_columns(x: &[[f64; CHANNELS]], f: impl Fn(&mut [f64])) -> Channels {
+    let mut out = x.to_vec();
+    for c in 0..CHANNELS {
+        let mut col = column(x, c);
+        f(&mut col);
+        for (t, v) in col.into_iter().enumerate() {
+            out[t][c] = v;
+        }
+    }
+    out
+}
+
+fn column(x: &[[f64; CHANNELS]], c: usize) -> Vec<f64> {
     x.iter().map(|r| r[c]).collect()
 }
 
@@ -128,16 +141,11 @@ pub fn lowpass(x: &Channels, cutoff: usize) -> Result<Channels, MotionError> {
     }
     let k = scaled(cutoff, n);
     let dct = Dct::new(n);
-    let mut out = x.clone();
-    for c in 0..CHANNELS {
-        let mut col = column(x, c);
-        dct.forward(&mut col);
+    let mut out = map_columns(x, |col| {
+        dct.forward(col);
         col[k.min(n)..].iter_mut().for_each(|v| *v = 0.0);
-        dct.inverse(&mut col);
-        for (t, v) in col.into_iter().enumerate() {
-            out[t][c] = v;
-        }
-    }
+        dct.inverse(col);
+    });
     wrap_all(&mut out);
     Ok(out)
 }
@@ -394,28 +402,8 @@ pub fn interpolate(
     // the band, so Adam leaves every other frequency untouched; STFT and PCA
     // gradients spread over all frequencies (the thesis's jitter).
     let dct = Dct::new(n);
-    let to_coeffs = |x: &Channels| -> Channels {
-        let mut c = vec![[0.0; CHANNELS]; n];
-        for ch in 0..CHANNELS {
-            let mut col = column(x, ch);
-            dct.forward(&mut col);
-            for t in 0..n {
-                c[t][ch] = col[t];
-            }
-        }
-        c
-    };
-    let from_coeffs = |c: &Channels| -> Channels {
-        let mut x = vec![[0.0; CHANNELS]; n];
-        for ch in 0..CHANNELS {
-            let mut col = column(c, ch);
-            dct.inverse(&mut col);
-            for t in 0..n {
-                x[t][ch] = col[t];
-            }
-        }
-        x
-    };
+    let to_coeffs = |x: &Channels| map_columns(x, |col| dct.forward(col));
+    let from_coeffs = |c: &Channels| map_columns(c, |col| dct.inverse(col));
     let (b1, b2, eps) = (0.9, 0.999, 1e-8);
     // A coefficient step of lr·√(n/2) moves samples by about lr: the learning
     // rate keeps its meaning (radians per step) whatever the clip length.
@@ -542,7 +530,7 @@ pub fn dct_band_swap(input: &Channels, target: &Channels, band: (usize, usize)) 
     let mut out = input[..n].to_vec();
     for c in 0..CHANNELS {
         let mut a = column(&out, c);
-        let mut b = column(&target[..n].to_vec(), c);
+        let mut b = column(&target[..n], c);
         dct.forward(&mut a);
         dct.forward(&mut b);
         a[lo..hi].copy_from_slice(&b[lo..hi]);
