@@ -7,6 +7,8 @@
 //! - [`data`] — where the real corpora live (`CHOREO_DATA`).
 //! - [`features`] — pure: STFT / DCT / PCA window embeddings.
 //! - [`index`] — `AnnIndex`: exact (the oracle) and HNSW, cosine or Euclidean.
+//! - [`tokenize`] — pure: motion ↔ tokens (uniform, quantile, JPEG-like tile
+//!   codec) and the language model vocabulary.
 
 //!
 //! Reading a motion and asking where its joints are:
@@ -27,5 +29,7 @@ pub mod data;
 pub mod features;
 pub mod index;
 pub mod motion;
+pub mod plot;
 pub mod service;
 pub mod store;
+pub mod tokenize;

@@ -262,6 +262,18 @@ enum EvalCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Thesis 000 Tables 4.1, 4.2 and Figure 4.5 on each --data path (its own
+    /// corpus): word length, compression, seconds in 1,024 tokens, geodesic
+    /// error, for the uniform, quantile and JPEG-like tile codecs.
+    Tokenize {
+        #[arg(long, required = true)]
+        data: Vec<PathBuf>,
+        /// Write Figure 4.5 (error vs uniform bins) here as PNG.
+        #[arg(long)]
+        plot: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -478,6 +490,9 @@ fn run(cli: Cli) -> Result<()> {
                     json,
                 },
         } => eval_query(data, labels, embedding, hop, k, json),
+        Cmd::Eval {
+            cmd: EvalCmd::Tokenize { data, plot, json },
+        } => eval_tokenize(data, plot, json),
     }
 }
 
@@ -1012,5 +1027,79 @@ fn dev_rotations() -> Result<()> {
         "geodesic_next": quats.windows(2).map(|w| geodesic_quat(w[0], w[1])).collect::<Vec<_>>(),
     });
     println!("{out}");
+    Ok(())
+}
+
+fn eval_tokenize(data: Vec<PathBuf>, plot: Option<PathBuf>, json: bool) -> Result<()> {
+    use choreo::service::eval_tokenize as et;
+    use choreo::tokenize::eval::CodecReport;
+    let t = std::time::Instant::now();
+    let corpora = data
+        .iter()
+        .map(|d| et::eval_corpus(d).with_context(|| format!("--data {}", d.display())))
+        .collect::<Result<Vec<_>>>()?;
+    if let Some(p) = &plot {
+        let png = choreo::plot::render_png(&et::figure_4_5(&corpora), 960, 600);
+        std::fs::write(p, png).with_context(|| format!("--plot {}", p.display()))?;
+    }
+    if json {
+        println!(
+            "{}",
+            json!({"corpora": corpora, "seconds": t.elapsed().as_secs_f64()})
+        );
+        return Ok(());
+    }
+    let table = |title: &str, rows: &[CodecReport]| {
+        println!("\n{title}");
+        println!(
+            "{:<28} {:>9} {:>8} {:>11} {:>9} {:>10} {:>9} {:>9}",
+            "codec",
+            "avg word",
+            "max word",
+            "compression",
+            "s in 1024",
+            "mean err°",
+            "p99 err°",
+            "max err°"
+        );
+        for r in rows {
+            println!(
+                "{:<28} {:>9.1} {:>8} {:>11.1} {:>9.2} {:>10.4} {:>9.2} {:>9.2}",
+                r.codec,
+                r.avg_word_length,
+                r.max_word_length,
+                r.compression_factor,
+                r.seconds_in_1024,
+                r.mean_error_rad.to_degrees(),
+                r.p99_error_rad.to_degrees(),
+                r.max_error_rad.to_degrees()
+            );
+        }
+    };
+    for c in &corpora {
+        println!(
+            "== {} — {} files ({} unreadable), {} frames at 60 fps, {} channels",
+            c.tables.corpus,
+            c.files,
+            c.errors.len(),
+            c.tables.frame_codecs.first().map(|r| r.frames).unwrap_or(0),
+            c.tables.channels
+        );
+        table("Frame codecs (SMPL-24, 60 fps)", &c.tables.frame_codecs);
+        table(
+            "Model layout (SMPL-13, 20 fps, angles only)",
+            &c.model_layout,
+        );
+        table(
+            "Table 4.1 (10% kept, 24 components, 360 quantile bins)",
+            &c.tables.table_4_1,
+        );
+        table(
+            "Table 4.2 (60-frame tiles, PCA, 360 quantile bins)",
+            &c.tables.table_4_2,
+        );
+        table("Figure 4.5 (uniform bins)", &c.tables.figure_4_5);
+    }
+    println!("\n{:.1} s", t.elapsed().as_secs_f64());
     Ok(())
 }

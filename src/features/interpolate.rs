@@ -73,25 +73,25 @@ pub fn to_f64(ch: &[[f32; CHANNELS]]) -> Channels {
 }
 
 /// Orthonormal DCT-II / DCT-III (its inverse) along time, per channel.
-struct Dct {
+pub(crate) struct Dct {
     fwd: std::sync::Arc<dyn rustdct::TransformType2And3<f64>>,
     n: usize,
 }
 
 impl Dct {
-    fn new(n: usize) -> Self {
+    pub(crate) fn new(n: usize) -> Self {
         Dct {
             fwd: DctPlanner::new().plan_dct2(n),
             n,
         }
     }
-    fn forward(&self, x: &mut [f64]) {
+    pub(crate) fn forward(&self, x: &mut [f64]) {
         self.fwd.process_dct2(x);
         let (s0, sk) = ((1.0 / self.n as f64).sqrt(), (2.0 / self.n as f64).sqrt());
         x[0] *= s0;
         x[1..].iter_mut().for_each(|v| *v *= sk);
     }
-    fn inverse(&self, x: &mut [f64]) {
+    pub(crate) fn inverse(&self, x: &mut [f64]) {
         // rustdct's DCT-III is y_n = x_0/2 + Σ_{k≥1} x_k cos(πk(2n+1)/2N), so
         // the orthonormal inverse weighs x_0 by 2/√N and the rest by √(2/N).
         let (s0, sk) = (

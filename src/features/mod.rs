@@ -105,14 +105,24 @@ impl StftParams {
 pub fn smpl24_at_60(m: &Motion) -> Result<Motion, MotionError> {
     let smpl = match m.skeleton.kind.as_str() {
         "smpl24" => m.clone(),
-        "smpl13" => m.smpl13_to_smpl24()?,
+        _ => as_smpl13(m)?.smpl13_to_smpl24()?,
+    };
+    smpl.resample(FEATURE_FPS)
+}
+
+/// A motion on the 13-joint SMPL subset: SMPL-24 is reduced (dropped chains
+/// composed into the kept joints), other skeletons are retargeted with the
+/// built-in joint map.
+pub fn as_smpl13(m: &Motion) -> Result<Motion, MotionError> {
+    match m.skeleton.kind.as_str() {
+        "smpl13" => Ok(m.clone()),
+        "smpl24" => m.to_smpl13(),
         _ => {
             let map =
                 JointMap::resolve(&m.skeleton, &BTreeMap::new()).map_err(|e| e.in_file(&m.name))?;
-            retarget_to_smpl13(m, &map)?.smpl13_to_smpl24()?
+            retarget_to_smpl13(m, &map)
         }
-    };
-    smpl.resample(FEATURE_FPS)
+    }
 }
 
 /// The rows of an SMPL-24 motion's rotations as `[frames][72]` f32.

@@ -2,5 +2,6 @@
 //! these and only translate types.
 
 pub mod eval_query;
+pub mod eval_tokenize;
 pub mod ingest;
 pub mod query;

@@ -1,0 +1,539 @@
+//! The language model's vocabulary and frame layout (SPEC §4, thesis 000
+//! §4.5.2, Fig. 4.8). Shared by the trainer and the server through JSON.
+//!
+//! A motion is reduced to the 13-joint SMPL subset at 20 fps. Each frame
+//! ("word") is 43 tokens:
+//!
+//! | slots  | what |
+//! |--------|------|
+//! | 0–38   | the 13 joints' axis-angle components (x, y, z per joint, Table A.1 order), uniform bins over [−π, π] |
+//! | 39, 40 | root ground-plane velocity x, z (m/s), uniform bins over `velocity_range` |
+//! | 41     | root (pelvis) height above the clip's floor (m), uniform bins over `height_range` |
+//! | 42     | the separator |
+//!
+//! The floor of a clip is the lowest joint of the 13 over the whole clip
+//! (the ankles, usually); velocities are backward differences (the first
+//! frame's is 0), so decoding starts the root above the origin.
+//!
+//! Token ids: `0..bins` are value bins (shared by every value slot); then
+//! the specials `<sep> <mask> <pad> <bos>`; then one class token
+//! `<cls:KIND>` per label kind; then one conditioning token `<KIND=VALUE>`
+//! per known label value. Kinds and values are kept sorted, so the ids are
+//! a pure function of the JSON.
+
+use super::UniformBins;
+use crate::features::as_smpl13;
+use crate::motion::rotation::{wrap_axis_angle, Vec3};
+use crate::motion::{Labels, Motion, MotionError, Skeleton};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, BTreeSet};
+use std::f64::consts::PI;
+
+pub const VOCAB_VERSION: u32 = 1;
+pub const SPECIALS: [&str; 4] = ["<sep>", "<mask>", "<pad>", "<bos>"];
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Vocabulary {
+    pub version: u32,
+    /// Bins per value slot (angles and root alike).
+    pub bins: usize,
+    /// Frames per second of the token stream.
+    pub fps: f64,
+    /// Skeleton kind of decoded motions (`smpl13`).
+    pub skeleton: String,
+    pub joints: Vec<String>,
+    /// Root ground-plane velocity range, m/s.
+    pub velocity_range: [f64; 2],
+    /// Root height range above the floor, m.
+    pub height_range: [f64; 2],
+    /// Label kind → known values.
+    pub labels: BTreeMap<String, BTreeSet<String>>,
+}
+
+/// What a token id stands for.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Token {
+    Value(u32),
+    Sep,
+    Mask,
+    Pad,
+    Bos,
+    Class(String),
+    Label(String, String),
+}
+
+impl Vocabulary {
+    /// The default layout (360 bins, 20 fps, SMPL-13) with these labels.
+    pub fn new(labels: BTreeMap<String, BTreeSet<String>>) -> Vocabulary {
+        Vocabulary {
+            version: VOCAB_VERSION,
+            bins: 360,
+            fps: 20.0,
+            skeleton: "smpl13".into(),
+            joints: Skeleton::smpl13().names,
+            velocity_range: [-4.0, 4.0],
+            height_range: [-0.5, 2.0],
+            labels,
+        }
+    }
+
+    /// The labels of a set of motions, gathered for [`Vocabulary::new`].
+    pub fn labels_of<'a>(
+        motions: impl IntoIterator<Item = &'a Labels>,
+    ) -> BTreeMap<String, BTreeSet<String>> {
+        let mut out: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+        for l in motions {
+            for (k, v) in l {
+                out.entry(k.clone()).or_default().insert(v.clone());
+            }
+        }
+        out
+    }
+
+    pub fn validate(&self) -> Result<(), MotionError> {
+        let bad =
+            |field: &str, reason: String| Err(MotionError::invalid("vocabulary", field, reason));
+        if self.version != VOCAB_VERSION {
+            return bad(
+                "version",
+                format!("{} (this build reads {VOCAB_VERSION})", self.version),
+            );
+        }
+        if !(2..=65_536).contains(&self.bins) {
+            return bad("bins", format!("{}; need 2..=65536", self.bins));
+        }
+        if !(self.fps > 0.0 && self.fps <= 1000.0) {
+            return bad("fps", format!("{}; need (0, 1000]", self.fps));
+        }
+        let sk = Skeleton::smpl13();
+        if self.skeleton != "smpl13" || self.joints != sk.names {
+            return bad("joints", "only the SMPL-13 joint list is supported".into());
+        }
+        for (name, r) in [
+            ("velocity_range", self.velocity_range),
+            ("height_range", self.height_range),
+        ] {
+            UniformBins::new(self.bins, r[0], r[1]).map_err(|_| {
+                MotionError::invalid(
+                    "vocabulary",
+                    name,
+                    format!("{r:?} is not a finite range lo < hi"),
+                )
+            })?;
+        }
+        for (k, vs) in &self.labels {
+            if k.is_empty() || k.contains(['=', ':', '<', '>']) {
+                return bad(
+                    "labels",
+                    format!("kind '{k}' is empty or holds one of = : < >"),
+                );
+            }
+            if vs.iter().any(|v| v.is_empty() || v.contains('>')) {
+                return bad(
+                    "labels",
+                    format!("kind '{k}' has an empty value or one with '>'"),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("vocabulary serialises")
+    }
+
+    pub fn from_json(text: &str, file: &str) -> Result<Vocabulary, MotionError> {
+        let v: Vocabulary = serde_json::from_str(text)
+            .map_err(|e| MotionError::invalid(file, "vocabulary", e.to_string()))?;
+        v.validate().map_err(|e| e.in_file(file))?;
+        Ok(v)
+    }
+
+    /// Value slots a frame has (joints × 3 + 3).
+    pub fn values_per_frame(&self) -> usize {
+        self.joints.len() * 3 + 3
+    }
+    /// Tokens a frame takes, the separator included (43).
+    pub fn frame_len(&self) -> usize {
+        self.values_per_frame() + 1
+    }
+    pub fn sep(&self) -> u32 {
+        self.bins as u32
+    }
+    pub fn mask(&self) -> u32 {
+        self.bins as u32 + 1
+    }
+    pub fn pad(&self) -> u32 {
+        self.bins as u32 + 2
+    }
+    pub fn bos(&self) -> u32 {
+        self.bins as u32 + 3
+    }
+    fn class_base(&self) -> u32 {
+        (self.bins + SPECIALS.len()) as u32
+    }
+    fn label_base(&self) -> u32 {
+        self.class_base() + self.labels.len() as u32
+    }
+    pub fn size(&self) -> usize {
+        self.label_base() as usize + self.labels.values().map(|v| v.len()).sum::<usize>()
+    }
+
+    pub fn class_token(&self, kind: &str) -> Result<u32, MotionError> {
+        self.labels
+            .keys()
+            .position(|k| k == kind)
+            .map(|i| self.class_base() + i as u32)
+            .ok_or_else(|| self.unknown_kind(kind))
+    }
+
+    fn unknown_kind(&self, kind: &str) -> MotionError {
+        MotionError::invalid(
+            "labels",
+            kind,
+            format!(
+                "unknown label kind; the vocabulary knows {:?}",
+                self.labels.keys().collect::<Vec<_>>()
+            ),
+        )
+    }
+
+    pub fn label_token(&self, kind: &str, value: &str) -> Result<u32, MotionError> {
+        let mut id = self.label_base();
+        for (k, vs) in &self.labels {
+            if k == kind {
+                return vs
+                    .iter()
+                    .position(|v| v == value)
+                    .map(|i| id + i as u32)
+                    .ok_or_else(|| {
+                        MotionError::invalid(
+                            "labels",
+                            kind,
+                            format!("'{value}' was not seen in training; known: {vs:?}"),
+                        )
+                    });
+            }
+            id += vs.len() as u32;
+        }
+        Err(self.unknown_kind(kind))
+    }
+
+    pub fn token(&self, id: u32) -> Option<Token> {
+        let b = self.bins as u32;
+        if id < b {
+            return Some(Token::Value(id));
+        }
+        match id - b {
+            0 => return Some(Token::Sep),
+            1 => return Some(Token::Mask),
+            2 => return Some(Token::Pad),
+            3 => return Some(Token::Bos),
+            _ => {}
+        }
+        if id < self.label_base() {
+            let k = self.labels.keys().nth((id - self.class_base()) as usize)?;
+            return Some(Token::Class(k.clone()));
+        }
+        let mut rest = (id - self.label_base()) as usize;
+        for (k, vs) in &self.labels {
+            if rest < vs.len() {
+                return Some(Token::Label(k.clone(), vs.iter().nth(rest)?.clone()));
+            }
+            rest -= vs.len();
+        }
+        None
+    }
+
+    /// A readable name for a token id.
+    pub fn token_name(&self, id: u32) -> String {
+        match self.token(id) {
+            Some(Token::Value(v)) => v.to_string(),
+            Some(Token::Sep) => SPECIALS[0].into(),
+            Some(Token::Mask) => SPECIALS[1].into(),
+            Some(Token::Pad) => SPECIALS[2].into(),
+            Some(Token::Bos) => SPECIALS[3].into(),
+            Some(Token::Class(k)) => format!("<cls:{k}>"),
+            Some(Token::Label(k, v)) => format!("<{k}={v}>"),
+            None => format!("<invalid:{id}>"),
+        }
+    }
+
+    /// `<bos>` then one conditioning token per given label (kind order).
+    /// Labels of kinds the vocabulary does not have are errors, as are
+    /// unseen values.
+    pub fn prefix(&self, labels: &Labels) -> Result<Vec<u32>, MotionError> {
+        let mut out = vec![self.bos()];
+        for (k, v) in labels {
+            out.push(self.label_token(k, v)?);
+        }
+        Ok(out)
+    }
+
+    /// The labels of a motion that this vocabulary can condition on (others
+    /// dropped), for building training prefixes.
+    pub fn known_labels(&self, labels: &Labels) -> Labels {
+        labels
+            .iter()
+            .filter(|(k, v)| self.labels.get(*k).is_some_and(|vs| vs.contains(*v)))
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect()
+    }
+
+    fn angle_bins(&self) -> UniformBins {
+        UniformBins {
+            bins: self.bins,
+            lo: -PI,
+            hi: PI,
+        }
+    }
+    fn velocity_bins(&self) -> UniformBins {
+        UniformBins {
+            bins: self.bins,
+            lo: self.velocity_range[0],
+            hi: self.velocity_range[1],
+        }
+    }
+    fn height_bins(&self) -> UniformBins {
+        UniformBins {
+            bins: self.bins,
+            lo: self.height_range[0],
+            hi: self.height_range[1],
+        }
+    }
+
+    /// The slot of a position inside a frame (0..43), counting from the
+    /// first frame token (Fig. 4.8's joint index).
+    pub fn slot(&self, pos_in_frames: usize) -> usize {
+        pos_in_frames % self.frame_len()
+    }
+
+    /// Token ids allowed at a slot: `0..bins` for values, `<sep>` last.
+    pub fn allowed(&self, slot: usize) -> std::ops::Range<u32> {
+        if slot + 1 == self.frame_len() {
+            self.sep()..self.sep() + 1
+        } else {
+            0..self.bins as u32
+        }
+    }
+
+    /// A motion in the token stream's form: SMPL-13 at the vocabulary's
+    /// fps (retargeted and resampled as needed).
+    pub fn prepare(&self, m: &Motion) -> Result<Motion, MotionError> {
+        let m13 = as_smpl13(m)?;
+        if (m13.fps - self.fps).abs() > 1e-9 {
+            m13.resample(self.fps)
+        } else {
+            Ok(m13)
+        }
+    }
+
+    /// The frames of a motion as tokens (`frames × 43`, each frame ending in
+    /// `<sep>`), no prefix.
+    pub fn encode_motion(&self, m: &Motion) -> Result<Vec<u32>, MotionError> {
+        let m = self.prepare(m)?;
+        let j = m.joints();
+        let pos = m.positions();
+        let floor = pos.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
+        let o = m.skeleton.offsets[0];
+        let root = |t: usize| -> Vec3 {
+            let tr = m.trans[t];
+            [o[0] + tr[0], o[1] + tr[1], o[2] + tr[2]]
+        };
+        let (ab, vb, hb) = (self.angle_bins(), self.velocity_bins(), self.height_bins());
+        let mut out = Vec::with_capacity(m.frames() * self.frame_len());
+        for t in 0..m.frames() {
+            for r in m.frame_rotations(t) {
+                let w = wrap_axis_angle(*r);
+                out.extend(w.iter().map(|&v| ab.encode(v)));
+            }
+            debug_assert_eq!(j * 3, self.joints.len() * 3);
+            let (p, q) = (root(t), root(t.saturating_sub(1)));
+            out.push(vb.encode((p[0] - q[0]) * m.fps));
+            out.push(vb.encode((p[2] - q[2]) * m.fps));
+            out.push(hb.encode(p[1] - floor));
+            out.push(self.sep());
+        }
+        Ok(out)
+    }
+
+    /// Decode a token stream into a motion. A leading `<bos>` and
+    /// conditioning / class tokens are skipped; then whole frames are read
+    /// (a trailing partial frame is dropped). A frame whose value slots hold
+    /// a non-value token, or whose last slot is not `<sep>`, is an error
+    /// naming the frame and slot.
+    pub fn decode_motion(&self, tokens: &[u32], name: &str) -> Result<Motion, MotionError> {
+        let start = tokens
+            .iter()
+            .position(|&t| {
+                !matches!(
+                    self.token(t),
+                    Some(Token::Bos | Token::Label(..) | Token::Class(_))
+                )
+            })
+            .unwrap_or(tokens.len());
+        let body = &tokens[start..];
+        let fl = self.frame_len();
+        let frames = body.len() / fl;
+        if frames == 0 {
+            return Err(MotionError::invalid(
+                name,
+                "tokens",
+                format!(
+                    "no whole frame ({} tokens after the prefix, a frame is {fl})",
+                    body.len()
+                ),
+            ));
+        }
+        let sk = Skeleton::smpl13();
+        let o = sk.offsets[0];
+        let (ab, vb, hb) = (self.angle_bins(), self.velocity_bins(), self.height_bins());
+        let nj = self.joints.len();
+        let mut rots = Vec::with_capacity(frames * nj);
+        let mut trans = Vec::with_capacity(frames);
+        let (mut x, mut z) = (0.0, 0.0);
+        for f in 0..frames {
+            let w = &body[f * fl..(f + 1) * fl];
+            for (s, &t) in w.iter().enumerate() {
+                let ok = if s + 1 == fl {
+                    t == self.sep()
+                } else {
+                    t < self.bins as u32
+                };
+                if !ok {
+                    return Err(MotionError::invalid(
+                        name,
+                        format!("tokens: frame {f}, slot {s}"),
+                        format!("{} is not allowed here", self.token_name(t)),
+                    ));
+                }
+            }
+            for k in 0..nj {
+                rots.push([
+                    ab.decode(w[3 * k]),
+                    ab.decode(w[3 * k + 1]),
+                    ab.decode(w[3 * k + 2]),
+                ]);
+            }
+            if f > 0 {
+                x += vb.decode(w[3 * nj]) / self.fps;
+                z += vb.decode(w[3 * nj + 1]) / self.fps;
+            }
+            let h = hb.decode(w[3 * nj + 2]);
+            trans.push([x - o[0], h - o[1], z - o[2]]);
+        }
+        Motion::new(name, self.fps, sk, trans, rots, Labels::new())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::motion::rotation::geodesic_axis_angle;
+
+    fn vocab() -> Vocabulary {
+        let mut labels = BTreeMap::new();
+        labels.insert(
+            "genre".to_string(),
+            ["gBR", "gPO"].iter().map(|s| s.to_string()).collect(),
+        );
+        labels.insert(
+            "dancer".to_string(),
+            ["d01"].iter().map(|s| s.to_string()).collect(),
+        );
+        Vocabulary::new(labels)
+    }
+
+    /// 13-joint clip at 20 fps: the root walks 1 m/s along +x at 0.9 m, the
+    /// left elbow swings.
+    fn walk(frames: usize) -> Motion {
+        let sk = Skeleton::smpl13();
+        let o = sk.offsets[0];
+        let mut rots = vec![[0.0; 3]; frames * 13];
+        for f in 0..frames {
+            rots[f * 13 + 9] = [0.0, 0.0, 0.8 * (f as f64 * 0.3).sin()];
+        }
+        let trans = (0..frames)
+            .map(|f| [f as f64 / 20.0 - o[0], 0.9 - o[1], -o[2]])
+            .collect();
+        Motion::new("walk", 20.0, sk, trans, rots, Labels::new()).unwrap()
+    }
+
+    #[test]
+    fn layout_and_ids() {
+        let v = vocab();
+        assert_eq!(v.frame_len(), 43);
+        assert_eq!(v.size(), 360 + 4 + 2 + 3);
+        assert_eq!(v.class_token("dancer").unwrap(), 364);
+        assert_eq!(v.class_token("genre").unwrap(), 365);
+        assert_eq!(v.label_token("dancer", "d01").unwrap(), 366);
+        assert_eq!(v.label_token("genre", "gPO").unwrap(), 368);
+        assert!(v
+            .label_token("genre", "gXX")
+            .unwrap_err()
+            .to_string()
+            .contains("not seen"));
+        assert!(v.class_token("style").is_err());
+        for id in 0..v.size() as u32 {
+            assert!(v.token(id).is_some(), "{id}");
+        }
+        assert_eq!(v.token(v.size() as u32), None);
+        assert_eq!(v.token_name(368), "<genre=gPO>");
+        assert_eq!(v.allowed(42), 360..361);
+        assert_eq!(v.allowed(5), 0..360);
+        let back = Vocabulary::from_json(&v.to_json(), "v.json").unwrap();
+        assert_eq!(back, v);
+        let mut bad = v.clone();
+        bad.bins = 1;
+        assert!(Vocabulary::from_json(&bad.to_json(), "v.json").is_err());
+    }
+
+    #[test]
+    fn a_walk_round_trips_through_tokens() {
+        let v = vocab();
+        let m = walk(40);
+        let toks = v.encode_motion(&m).unwrap();
+        assert_eq!(toks.len(), 40 * 43);
+        let mut labels = Labels::new();
+        labels.insert("genre".into(), "gBR".into());
+        let mut stream = v.prefix(&labels).unwrap();
+        stream.extend(&toks);
+        stream.extend(&toks[..10]); // a partial frame is dropped
+        let d = v.decode_motion(&stream, "walk").unwrap();
+        assert_eq!(d.frames(), 40);
+        // Half a 1° bin per component at most → well under 1° per joint.
+        for f in 0..40 {
+            for k in 0..13 {
+                let g = geodesic_axis_angle(m.rot(f, k), d.rot(f, k));
+                assert!(g < 0.5f64.to_radians() * 3f64.sqrt() + 1e-9, "{f} {k} {g}");
+            }
+        }
+        // The root walks 1 m/s: 39 steps of 5 cm, each off by < half a bin.
+        let (a, b) = (m.positions(), d.positions());
+        let dx = |p: &Vec<Vec3>| p[39 * 13][0] - p[0][0];
+        let half = 8.0 / 360.0 / 2.0 / 20.0;
+        assert!((dx(&a) - dx(&b)).abs() <= 39.0 * half + 1e-9);
+        // Heights are measured from the clip's lowest joint, so the decoded
+        // clip's floor is at 0 and its shape matches.
+        let floor = |p: &Vec<Vec3>| p.iter().map(|q| q[1]).fold(f64::INFINITY, f64::min);
+        assert!(floor(&b).abs() < 2.5 / 360.0);
+        assert!(((a[0][1] - floor(&a)) - (b[0][1] - floor(&b))).abs() < 2.5 / 360.0);
+    }
+
+    #[test]
+    fn bad_streams_are_errors() {
+        let v = vocab();
+        let toks = v.encode_motion(&walk(3)).unwrap();
+        assert!(v.decode_motion(&toks[..42], "x").is_err());
+        let mut t = toks.clone();
+        t[42] = 5;
+        let e = v.decode_motion(&t, "x").unwrap_err().to_string();
+        assert!(e.contains("frame 0, slot 42"), "{e}");
+        let mut t = toks.clone();
+        t[50] = v.sep();
+        assert!(v.decode_motion(&t, "x").is_err());
+        let mut l = Labels::new();
+        l.insert("music".into(), "mBR0".into());
+        assert!(v.prefix(&l).is_err());
+    }
+}
