@@ -183,6 +183,10 @@ enum Cmd {
         lr: f64,
         #[arg(long)]
         out: PathBuf,
+        /// Repair short capture glitches first (per joint: jumps > 45° that
+        /// come back within 3 frames, replaced by SLERP).
+        #[arg(long)]
+        despike: bool,
         #[arg(long)]
         json: bool,
     },
@@ -259,6 +263,27 @@ enum EvalCmd {
         hop: usize,
         #[arg(long, default_value_t = 10)]
         k: usize,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Thesis 000 Tables 3.3/3.4 over pairs drawn from a corpus (fixed seed):
+    /// every objective, cosine similarities of STFT embeddings, jitter.
+    Interpolate {
+        #[arg(long, required = true)]
+        data: Vec<PathBuf>,
+        #[arg(long, default_value_t = 10)]
+        pairs: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long, default_value = "0:8", value_parser = parse_range)]
+        band: (usize, usize),
+        #[arg(long, default_value_t = 300)]
+        steps: usize,
+        #[arg(long, default_value_t = 0.02)]
+        lr: f64,
+        /// Repair short capture glitches first (see `interpolate --despike`).
+        #[arg(long)]
+        despike: bool,
         #[arg(long)]
         json: bool,
     },
@@ -442,18 +467,21 @@ fn run(cli: Cli) -> Result<()> {
             steps,
             lr,
             out,
+            despike,
             json,
         } => {
             let objective = Embedding::parse(&objective)
                 .with_context(|| format!("--objective: '{objective}' is not dct, stft or pca"))?;
-            interpolate_cmd(&input, &target, band, objective, steps, lr, &out, json)
+            interpolate_cmd(
+                &input, &target, band, objective, steps, lr, &out, despike, json,
+            )
         }
         Cmd::Lowpass { input, cutoff, out } => {
             use choreo::features::interpolate::{lowpass, to_f64};
             use choreo::features::{rows72, smpl24_at_60};
             let m = smpl24_at_60(&io::read_path(&input, &ReadOptions::default())?.motion)?;
             let filtered = lowpass(&to_f64(&rows72(&m)), cutoff).map_err(|e| e.in_file(&m.name))?;
-            let result = with_channels(&m, &filtered);
+            let result = choreo::service::interpolate::with_channels(&m, &filtered);
             io::write_path(&result, &out, &bvh::BvhWriteOptions::default())?;
             eprintln!(
                 "wrote {} ({} frames at 60 fps)",
@@ -493,6 +521,19 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Eval {
             cmd: EvalCmd::Tokenize { data, plot, json },
         } => eval_tokenize(data, plot, json),
+        Cmd::Eval {
+            cmd:
+                EvalCmd::Interpolate {
+                    data,
+                    pairs,
+                    seed,
+                    band,
+                    steps,
+                    lr,
+                    despike,
+                    json,
+                },
+        } => eval_interpolate(data, pairs, seed, band, steps, lr, despike, json),
     }
 }
 
@@ -663,15 +704,6 @@ fn eval_query(
 
 /// An SMPL-24 motion with its rotations replaced by a `[frames][72]` matrix
 /// (translation kept, cut to the matrix's length).
-fn with_channels(m: &Motion, ch: &[[f64; 72]]) -> Motion {
-    let n = ch.len().min(m.frames());
-    let rots = ch[..n]
-        .iter()
-        .flat_map(|r| (0..24).map(move |j| [r[3 * j], r[3 * j + 1], r[3 * j + 2]]))
-        .collect();
-    m.with_data(m.trans[..n].to_vec(), rots)
-}
-
 #[allow(clippy::too_many_arguments)]
 fn interpolate_cmd(
     input: &std::path::Path,
@@ -681,53 +713,22 @@ fn interpolate_cmd(
     steps: usize,
     lr: f64,
     out: &std::path::Path,
+    despike: bool,
     as_json: bool,
 ) -> Result<()> {
-    use choreo::features::interpolate::{interpolate, mean_jerk, to_f64, InterpolateOptions};
-    use choreo::features::{rows72, smpl24_at_60, window, window_starts, Extractor, StftParams};
-    let a = smpl24_at_60(&io::read_path(input, &ReadOptions::default())?.motion)?;
-    let b = smpl24_at_60(&io::read_path(target, &ReadOptions::default())?.motion)?;
-    let t = std::time::Instant::now();
+    use choreo::features::interpolate::InterpolateOptions;
+    let a = io::read_path(input, &ReadOptions::default())?.motion;
+    let b = io::read_path(target, &ReadOptions::default())?.motion;
     let opts = InterpolateOptions {
         objective,
         band,
         steps,
         learning_rate: lr,
     };
-    let r = interpolate(&to_f64(&rows72(&a)), &to_f64(&rows72(&b)), &opts)?;
-    let seconds = t.elapsed().as_secs_f64();
-    let n = r.frames;
-    let o = with_channels(&a, &r.output);
-    let i = a.cut(0, n)?;
-    let tg = b.cut(0, n)?;
-    // Table 3.3's columns: cosine similarity of the STFT embeddings (all
-    // windows, hop 32, concatenated).
-    let ex = Extractor::new(StftParams::default())?;
-    let stft_all = |m: &Motion| -> Vec<f32> {
-        let ch = rows72(m);
-        window_starts(ch.len(), 32)
-            .into_iter()
-            .flat_map(|s| ex.stft(&window(&ch, s)))
-            .collect()
-    };
-    let (vi, vo, vt) = (stft_all(&i), stft_all(&o), stft_all(&tg));
-    let cos = |x: &[f32], y: &[f32]| {
-        let d = choreo::index::dot(x, y) as f64;
-        d / ((choreo::index::dot(x, x) as f64).sqrt() * (choreo::index::dot(y, y) as f64).sqrt())
-            .max(1e-30)
-    };
-    let jitter = |m: &Motion| mean_jerk(&m.positions(), m.joints(), m.fps);
+    let (o, r) = choreo::service::interpolate::interpolate_motions(&a, &b, &opts, despike)?;
     io::write_path(&o, out, &bvh::BvhWriteOptions::default())?;
-    let report = json!({
-        "similarity": {"o_t": cos(&vo, &vt), "i_o": cos(&vi, &vo), "i_t": cos(&vi, &vt)},
-        "jitter": {"input": jitter(&i), "output": jitter(&o), "target": jitter(&tg)},
-        "loss": r.loss,
-        "steps": r.steps,
-        "seconds": seconds,
-        "frames": n,
-        "objective": objective,
-        "band": [band.0, band.1],
-    });
+    let seconds = r.seconds;
+    let report = serde_json::to_value(&r)?;
     if as_json {
         println!("{report}");
     } else {
@@ -1101,5 +1102,103 @@ fn eval_tokenize(data: Vec<PathBuf>, plot: Option<PathBuf>, json: bool) -> Resul
         table("Figure 4.5 (uniform bins)", &c.tables.figure_4_5);
     }
     println!("\n{:.1} s", t.elapsed().as_secs_f64());
+    Ok(())
+}
+
+fn eval_interpolate(
+    data: Vec<PathBuf>,
+    pairs: usize,
+    seed: u64,
+    band: (usize, usize),
+    steps: usize,
+    lr: f64,
+    despike: bool,
+    json: bool,
+) -> Result<()> {
+    use choreo::features::interpolate::InterpolateOptions;
+    let files = choreo::service::ingest::collect_files(&data);
+    let base = InterpolateOptions {
+        objective: Embedding::Dct,
+        band,
+        steps,
+        learning_rate: lr,
+    };
+    let t = std::time::Instant::now();
+    let r = choreo::service::interpolate::eval_interpolate(
+        &files,
+        pairs,
+        seed,
+        &Embedding::ALL,
+        &base,
+        despike,
+    )?;
+    if json {
+        println!(
+            "{}",
+            json!({"rows": r.rows, "summary": r.summary, "files": r.files, "errors": r.errors, "seconds": t.elapsed().as_secs_f64()})
+        );
+        return Ok(());
+    }
+    println!(
+        "{} pairs from {} files (seed {seed}), band {}:{}, {steps} Adam steps, lr {lr}, glitch repair {}",
+        pairs.min(r.rows.len() / 3),
+        r.files,
+        band.0,
+        band.1,
+        if despike { "on" } else { "off" }
+    );
+    println!(
+        "{:>4} {:<6} {:>7} {:>7} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9}  input → target",
+        "pair",
+        "obj",
+        "O→T",
+        "I→O",
+        "I→T",
+        "between",
+        "jerk in",
+        "jerk swap",
+        "jerk out",
+        "med out"
+    );
+    let short = |s: &str| {
+        std::path::Path::new(s)
+            .file_stem()
+            .map(|x| x.to_string_lossy().to_string())
+            .unwrap_or_else(|| s.to_string())
+    };
+    for row in &r.rows {
+        println!(
+            "{:>4} {:<6} {:>7.3} {:>7.3} {:>7.3} {:>8} {:>9.0} {:>9.0} {:>9.0} {:>9.0}  {} → {}",
+            row.pair,
+            row.objective.name(),
+            row.similarity.o_t,
+            row.similarity.i_o,
+            row.similarity.i_t,
+            if row.between { "yes" } else { "no" },
+            row.jitter.input,
+            row.jitter.band_swap,
+            row.jitter.output,
+            row.jitter.median.output,
+            short(&row.input),
+            short(&row.target)
+        );
+    }
+    println!("\nsummary (means over pairs; jerk in m/s³, 'band swap' = the input with its band replaced by the target's)");
+    for s in &r.summary {
+        println!(
+            "{:<5} O→T {:.3}  I→O {:.3}  I→T {:.3}  between {}/{}  jerk input {:.0}, band swap {:.0}, output {:.0}; output/swap (medians) {:.2}",
+            s.objective.name(),
+            s.mean_o_t,
+            s.mean_i_o,
+            s.mean_i_t,
+            s.between,
+            s.pairs,
+            s.mean_jerk_input,
+            s.mean_jerk_band_swap,
+            s.mean_jerk_output,
+            s.median_jerk_ratio
+        );
+    }
+    println!("{:.1} s", t.elapsed().as_secs_f64());
     Ok(())
 }

@@ -545,21 +545,40 @@ pub fn dct_band_swap(input: &Channels, target: &Channels, band: (usize, usize)) 
 /// Mean jerk of joint positions (m/s³): the third time difference of every
 /// joint's position times fps³, its norm averaged over frames and joints.
 pub fn mean_jerk(positions: &[crate::motion::rotation::Vec3], joints: usize, fps: f64) -> f64 {
-    let frames = positions.len() / joints.max(1);
-    if frames < 4 {
+    let per = frame_jerk(positions, joints, fps);
+    per.iter().sum::<f64>() / per.len().max(1) as f64
+}
+
+/// Median over frames of the per-frame mean joint jerk (m/s³): unlike the
+/// mean, a few single-frame capture glitches do not move it.
+pub fn median_jerk(positions: &[crate::motion::rotation::Vec3], joints: usize, fps: f64) -> f64 {
+    let mut per = frame_jerk(positions, joints, fps);
+    if per.is_empty() {
         return 0.0;
     }
-    let mut sum = 0.0;
-    for f in 0..frames - 3 {
-        for j in 0..joints {
-            let p = |k: usize| positions[(f + k) * joints + j];
-            let d: Vec<f64> = (0..3)
-                .map(|a| p(3)[a] - 3.0 * p(2)[a] + 3.0 * p(1)[a] - p(0)[a])
-                .collect();
-            sum += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() * fps.powi(3);
-        }
+    per.sort_by(f64::total_cmp);
+    per[per.len() / 2]
+}
+
+/// Jerk norm averaged over joints, for every frame that has three after it.
+fn frame_jerk(positions: &[crate::motion::rotation::Vec3], joints: usize, fps: f64) -> Vec<f64> {
+    let frames = positions.len() / joints.max(1);
+    if frames < 4 {
+        return vec![];
     }
-    sum / ((frames - 3) * joints) as f64
+    (0..frames - 3)
+        .map(|f| {
+            let mut sum = 0.0;
+            for j in 0..joints {
+                let p = |k: usize| positions[(f + k) * joints + j];
+                let d: Vec<f64> = (0..3)
+                    .map(|a| p(3)[a] - 3.0 * p(2)[a] + 3.0 * p(1)[a] - p(0)[a])
+                    .collect();
+                sum += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() * fps.powi(3);
+            }
+            sum / joints as f64
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -479,9 +479,72 @@ impl Motion {
     }
 }
 
+impl Motion {
+    /// Repair single-frame capture glitches ("flips"): a run of at most
+    /// `max_run` frames where a joint's rotation jumps more than
+    /// `threshold` radians from the frame before the run while the frames on
+    /// both sides of the run agree within `threshold / 2`, is replaced by a
+    /// SLERP between those two frames (per joint). Returns the repaired
+    /// motion and the number of (frame, joint) rotations replaced.
+    pub fn despike(&self, max_run: usize, threshold: f64) -> (Motion, usize) {
+        let (n, j) = (self.frames(), self.joints());
+        let mut rots = self.rotations.clone();
+        let mut fixed = 0;
+        for k in 0..j {
+            let q = |rots: &Vec<Vec3>, f: usize| axis_angle_to_quat(rots[f * j + k]);
+            let mut t = 1;
+            while t < n {
+                let before = q(&rots, t - 1);
+                if geodesic_quat(before, q(&rots, t)) <= threshold {
+                    t += 1;
+                    continue;
+                }
+                let back = (t + 1..(t + 1 + max_run).min(n))
+                    .find(|&e| geodesic_quat(before, q(&rots, e)) <= threshold / 2.0);
+                match back {
+                    Some(e) => {
+                        let after = q(&rots, e);
+                        for f in t..e {
+                            let a = (f - t + 1) as f64 / (e - t + 1) as f64;
+                            rots[f * j + k] = quat_to_axis_angle(slerp(before, after, a));
+                            fixed += 1;
+                        }
+                        t = e + 1;
+                    }
+                    None => t += 1,
+                }
+            }
+        }
+        (self.with_data(self.trans.clone(), rots), fixed)
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+
+    #[test]
+    fn despike_repairs_a_one_frame_flip_and_leaves_fast_turns() {
+        let mut m = sine_clip(60, 60.0);
+        let j = m.joints();
+        // Frame 20: the root flips 85° about y for one frame.
+        let r0 = m.rotations[20 * j];
+        m.rotations[20 * j] = quat_to_axis_angle(quat_mul(
+            axis_angle_to_quat([0.0, 85f64.to_radians(), 0.0]),
+            axis_angle_to_quat(r0),
+        ));
+        // Frames 40..: spine1 turns 1 rad a frame for good (no return).
+        for f in 40..60 {
+            m.rotations[f * j + 3] = [0.0, (f - 39) as f64, 0.0];
+        }
+        let (d, fixed) = m.despike(3, 30f64.to_radians());
+        assert_eq!(fixed, 1);
+        assert!(geodesic_axis_angle(d.rotations[20 * j], r0) < 1e-9);
+        assert_eq!(
+            d.rotations[40 * j + 3..].to_vec(),
+            m.rotations[40 * j + 3..].to_vec()
+        );
+    }
 
     /// A hand-checkable SMPL clip: the left elbow swings about z as a sine,
     /// the root walks along +x.

@@ -4,4 +4,5 @@
 pub mod eval_query;
 pub mod eval_tokenize;
 pub mod ingest;
+pub mod interpolate;
 pub mod query;
