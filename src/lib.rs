@@ -28,6 +28,7 @@
 pub mod data;
 pub mod features;
 pub mod index;
+pub mod keyframes;
 pub mod motion;
 pub mod plot;
 pub mod service;

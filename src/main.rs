@@ -198,6 +198,30 @@ enum Cmd {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Pick keyframes (first and last always kept) and rebuild the
+    /// in-betweens; the clip is taken as SMPL-24 at 60 fps.
+    Keyframes {
+        #[arg(long)]
+        motion: PathBuf,
+        /// A metronome at this tempo stands for the music (onset selection).
+        #[arg(long)]
+        bpm: Option<f64>,
+        /// Music file (WAV/Ogg/MP3) for onset selection.
+        #[arg(long, conflicts_with = "bpm")]
+        music: Option<PathBuf>,
+        #[arg(long)]
+        count: usize,
+        /// even | onset | percussive | nmfd | dp
+        #[arg(long, default_value = "dp")]
+        select: String,
+        /// slerp | bezier
+        #[arg(long, default_value = "slerp")]
+        inbetween: String,
+        #[arg(long)]
+        out: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Benchmarks whose figures go to bench/RESULTS.md.
     Bench {
         #[command(subcommand)]
@@ -235,6 +259,18 @@ enum BenchCmd {
         dump: Option<PathBuf>,
         #[arg(long, default_value_t = 128)]
         ef_search: usize,
+    },
+    /// DP keyframe selection time on a clip looped to --frames frames (60 fps):
+    /// per 4/4 measure at --bpm, and over the whole clip (exact).
+    Keyframes {
+        #[arg(long)]
+        motion: PathBuf,
+        #[arg(long, default_value_t = 3600)]
+        frames: usize,
+        #[arg(long, default_value_t = 120.0)]
+        bpm: f64,
+        #[arg(long, default_value_t = 9)]
+        per_measure: usize,
     },
     /// Embedding throughput (windows/s) on the real windows of a corpus.
     Embed {
@@ -284,6 +320,19 @@ enum EvalCmd {
         /// Repair short capture glitches first (see `interpolate --despike`).
         #[arg(long)]
         despike: bool,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Thesis 001 Tables 4.1–4.7 protocol: clips cut into 4/4 measures at
+    /// their tempo, N keyframes per measure, MSE / FID_k / FID_g.
+    Keyframes {
+        #[arg(long, required = true)]
+        data: Vec<PathBuf>,
+        /// Tempo for clips without a tempo label.
+        #[arg(long, default_value_t = 120.0)]
+        bpm: f64,
+        #[arg(long, value_delimiter = ',', default_value = "3,5,9")]
+        counts: Vec<usize>,
         #[arg(long)]
         json: bool,
     },
@@ -507,6 +556,15 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Bench {
             cmd: BenchCmd::Embed { data, dump },
         } => bench_embed(&data, dump.as_deref()),
+        Cmd::Bench {
+            cmd:
+                BenchCmd::Keyframes {
+                    motion,
+                    frames,
+                    bpm,
+                    per_measure,
+                },
+        } => bench_keyframes(&motion, frames, bpm, per_measure),
         Cmd::Eval {
             cmd:
                 EvalCmd::Query {
@@ -521,6 +579,25 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Eval {
             cmd: EvalCmd::Tokenize { data, plot, json },
         } => eval_tokenize(data, plot, json),
+        Cmd::Eval {
+            cmd:
+                EvalCmd::Keyframes {
+                    data,
+                    bpm,
+                    counts,
+                    json,
+                },
+        } => eval_keyframes(data, bpm, counts, json),
+        Cmd::Keyframes {
+            motion,
+            bpm,
+            music,
+            count,
+            select,
+            inbetween,
+            out,
+            json,
+        } => keyframes_cmd(motion, bpm, music, count, select, inbetween, out, json),
         Cmd::Eval {
             cmd:
                 EvalCmd::Interpolate {
@@ -1200,5 +1277,166 @@ fn eval_interpolate(
         );
     }
     println!("{:.1} s", t.elapsed().as_secs_f64());
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn keyframes_cmd(
+    motion: PathBuf,
+    bpm: Option<f64>,
+    music: Option<PathBuf>,
+    count: usize,
+    select: String,
+    inbetween: String,
+    out: Option<PathBuf>,
+    json: bool,
+) -> Result<()> {
+    use choreo::service::keyframes::{reconstruct, Inbetween, KeyframeRequest, Music, Select};
+    let select = Select::parse(&select).with_context(|| {
+        format!("--select: '{select}' is not even, onset, percussive, nmfd or dp")
+    })?;
+    let inbetween = match inbetween.as_str() {
+        "slerp" => Inbetween::Slerp,
+        "bezier" => Inbetween::Bezier,
+        other => bail!("--inbetween: '{other}' is not slerp or bezier"),
+    };
+    if let Some(p) = music {
+        bail!(
+            "--music {}: audio analysis is not in this build yet; give the tempo with --bpm",
+            p.display()
+        );
+    }
+    let m = io::read_path(&motion, &ReadOptions::default())?.motion;
+    let req = KeyframeRequest {
+        select,
+        inbetween,
+        count,
+        music: bpm.map(Music::Bpm).unwrap_or(Music::None),
+    };
+    let (r, report) =
+        reconstruct(&m, &req).map_err(|e| anyhow::anyhow!("{}: {e}", motion.display()))?;
+    if let Some(o) = &out {
+        io::write_path(&r, o, &bvh::BvhWriteOptions::default())?;
+    }
+    if json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "{} keyframes ({} / {}) of {} frames: {:?}\nMSE {:.4} cm²{}",
+            report.keyframes.len(),
+            report.select.name(),
+            report.inbetween,
+            report.frames,
+            report.keyframes,
+            report.mse * 1e4,
+            out.map(|o| format!("; wrote {}", o.display()))
+                .unwrap_or_default()
+        );
+    }
+    Ok(())
+}
+
+fn eval_keyframes(data: Vec<PathBuf>, bpm: f64, counts: Vec<usize>, json: bool) -> Result<()> {
+    let files = choreo::service::ingest::collect_files(&data);
+    let t = std::time::Instant::now();
+    let r = choreo::service::keyframes::eval_keyframes(&files, bpm, &counts)?;
+    if json {
+        println!(
+            "{}",
+            json!({"rows": r.rows, "clips": r.clips, "errors": r.errors, "seconds": t.elapsed().as_secs_f64()})
+        );
+        return Ok(());
+    }
+    for c in &r.clips {
+        println!(
+            "{}: {} BPM{}, {} frames a measure, {} measures",
+            c.name,
+            c.bpm,
+            if c.tempo_known { "" } else { " (assumed)" },
+            c.frames_per_measure,
+            c.measures
+        );
+    }
+    let f = |v: Option<f64>| v.map(|x| format!("{x:.2}")).unwrap_or_else(|| "—".into());
+    for &n in &counts {
+        println!("\n{n} keyframes per measure");
+        println!(
+            "{:<8} {:<11} {:>9} {:>10} {:>10}",
+            "select", "in-between", "MSE cm²", "FID_k", "FID_g"
+        );
+        for row in r.rows.iter().filter(|x| x.keyframes_per_measure == n) {
+            println!(
+                "{:<8} {:<11} {:>9.3} {:>10} {:>10}",
+                row.select.name(),
+                row.inbetween,
+                row.mse_cm2,
+                f(row.fid_k),
+                f(row.fid_g)
+            );
+        }
+    }
+    println!("\n{:.1} s", t.elapsed().as_secs_f64());
+    Ok(())
+}
+
+fn bench_keyframes(
+    motion: &std::path::Path,
+    frames: usize,
+    bpm: f64,
+    per_measure: usize,
+) -> Result<()> {
+    use choreo::keyframes::{dp, frames_per_measure, position_curve, SegmentCost};
+    let m =
+        choreo::features::smpl24_at_60(&io::read_path(motion, &ReadOptions::default())?.motion)?;
+    // Loop the clip (root translation continued) up to `frames`.
+    let mut trans = vec![];
+    let mut rots = vec![];
+    let j = m.joints();
+    let mut offset = [0.0; 3];
+    while trans.len() < frames {
+        for f in 0..m.frames() {
+            if trans.len() == frames {
+                break;
+            }
+            let t = m.trans[f];
+            trans.push([t[0] + offset[0], t[1], t[2] + offset[2]]);
+            rots.extend_from_slice(&m.rotations[f * j..(f + 1) * j]);
+        }
+        let last = m.trans[m.frames() - 1];
+        offset = [
+            offset[0] + last[0] - m.trans[0][0],
+            0.0,
+            offset[2] + last[2] - m.trans[0][2],
+        ];
+    }
+    let long = m.with_data(trans, rots);
+    let p = long.positions();
+    let curve = position_curve(&p);
+    let fpm = frames_per_measure(bpm, 60.0).round() as usize;
+    let t = std::time::Instant::now();
+    let mut measures = 0;
+    let mut s = 0;
+    while s + fpm < frames {
+        let c = SegmentCost::new(curve[s * 3 * j..(s + fpm + 1) * 3 * j].to_vec(), 3 * j);
+        dp(&c, per_measure, None)?;
+        measures += 1;
+        s += fpm;
+    }
+    let per = t.elapsed().as_secs_f64();
+    let total_keys = measures * (per_measure - 1) + 1;
+    let t = std::time::Instant::now();
+    let c = SegmentCost::new(curve.clone(), 3 * j);
+    let (_, cost) = dp(&c, total_keys, None)?;
+    let whole = t.elapsed().as_secs_f64();
+    let t = std::time::Instant::now();
+    let (_, cost_gap) = dp(&c, total_keys, Some(2 * fpm))?;
+    let gapped = t.elapsed().as_secs_f64();
+    println!(
+        "{frames} frames ({} looped), {bpm} BPM = {fpm} frames a measure, {measures} measures\n\
+         per measure, {per_measure} keyframes each: {:.3} s\n\
+         whole clip, {total_keys} keyframes, exact: {:.2} s (cost {:.3})\n\
+         whole clip, gaps ≤ 2 measures: {:.2} s (cost {:.3})",
+        m.name, per, whole, cost, gapped, cost_gap
+    );
     Ok(())
 }

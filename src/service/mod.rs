@@ -5,4 +5,5 @@ pub mod eval_query;
 pub mod eval_tokenize;
 pub mod ingest;
 pub mod interpolate;
+pub mod keyframes;
 pub mod query;

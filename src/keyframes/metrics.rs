@@ -1,0 +1,506 @@
+//! Reconstruction metrics on forward-kinematics joint positions (thesis 001
+//! §2.8, §3.6; SPEC §6). Positions are `[frames][joints]` in metres, y up.
+//!
+//! - [`mse`]: Eq. 2.8, mean over frames and joints of the squared distance.
+//! - [`kinetic_features`]: the 72-d kinetic features AIST++'s evaluation uses
+//!   (per SMPL joint: mean horizontal and vertical kinetic energy of the
+//!   5-frame-window average velocity, and mean acceleration magnitude).
+//!   AIST++'s code divides only the earlier position by the frame time in
+//!   its acceleration (an operator-precedence slip, which makes that term
+//!   mostly position); we compute the acceleration as written in its
+//!   formula, so our FID_k is not numerically comparable with theirs.
+//! - [`geometric_features`]: the 32 boolean Müller-style features of
+//!   AIST++'s evaluation, averaged over frames. Their velocity thresholds
+//!   assume a 1/120 s frame time (kept as defined) and their body-size
+//!   thresholds scale with the humerus length, shoulder and hip width — here
+//!   taken from the SMPL rest skeleton.
+//! - [`fid`]: Fréchet distance between two sets of feature vectors, each
+//!   dimension standardised by the real set's mean and standard deviation.
+//! - [`beat_alignment`]: both directions, see its docs.
+
+use crate::features::pca::jacobi_eigen;
+use crate::motion::rotation::{cross, dot, norm, sub, Vec3};
+use crate::motion::{Motion, Skeleton};
+
+/// Eq. 2.8: mean over frames and joints of |x − x̂|², in m².
+pub fn mse(a: &[Vec3], b: &[Vec3]) -> f64 {
+    let n = a.len().min(b.len()).max(1);
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| {
+            let d = sub(*p, *q);
+            dot(d, d)
+        })
+        .sum::<f64>()
+        / n as f64
+}
+
+/// Per-frame squared error averaged over joints (m²).
+pub fn per_frame_error(a: &[Vec3], b: &[Vec3], joints: usize) -> Vec<f64> {
+    a.chunks(joints)
+        .zip(b.chunks(joints))
+        .map(|(x, y)| mse(x, y))
+        .collect()
+}
+
+fn window_velocity(p: &[Vec3], j: usize, joints: usize, i: usize, dt: f64) -> Vec3 {
+    let n = p.len() / joints;
+    let (mut v, mut c) = ([0.0; 3], 0.0);
+    for o in -2i64..=2 {
+        let t = i as i64 + o;
+        if t - 1 < 0 || t >= n as i64 {
+            continue;
+        }
+        let d = sub(p[t as usize * joints + j], p[(t as usize - 1) * joints + j]);
+        v = [v[0] + d[0], v[1] + d[1], v[2] + d[2]];
+        c += 1.0;
+    }
+    [v[0] / (c * dt), v[1] / (c * dt), v[2] / (c * dt)]
+}
+
+fn window_acceleration(p: &[Vec3], j: usize, joints: usize, i: usize, dt: f64) -> f64 {
+    let n = p.len() / joints;
+    let (mut a, mut c) = ([0.0; 3], 0.0);
+    for o in -2i64..=2 {
+        let t = i as i64 + o;
+        if t - 1 < 0 || t + 1 >= n as i64 {
+            continue;
+        }
+        let t = t as usize;
+        for k in 0..3 {
+            let v2 = (p[(t + 1) * joints + j][k] - p[t * joints + j][k]) / dt;
+            let v1 = (p[t * joints + j][k] - p[(t - 1) * joints + j][k]) / dt;
+            a[k] += (v2 - v1) / dt;
+        }
+        c += 1.0;
+    }
+    if c == 0.0 {
+        0.0
+    } else {
+        norm([a[0] / c, a[1] / c, a[2] / c])
+    }
+}
+
+/// 3 values per joint: mean horizontal KE, mean vertical KE (of the
+/// window-averaged velocity, per unit mass, ×2), mean acceleration norm.
+pub fn kinetic_features(p: &[Vec3], joints: usize, fps: f64) -> Vec<f64> {
+    let n = p.len() / joints.max(1);
+    let dt = 1.0 / fps;
+    let mut out = Vec::with_capacity(3 * joints);
+    let denom = (n as f64 - 1.0).max(1.0);
+    for j in 0..joints {
+        let (mut h, mut v, mut e) = (0.0, 0.0, 0.0);
+        for i in 1..n {
+            let w = window_velocity(p, j, joints, i, dt);
+            h += w[0] * w[0] + w[2] * w[2];
+            v += w[1] * w[1];
+            e += window_acceleration(p, j, joints, i, dt);
+        }
+        out.extend([h / denom, v / denom, e / denom]);
+    }
+    out
+}
+
+/// SMPL-24 joint indices used by the geometric features.
+mod j {
+    pub const ROOT: usize = 0;
+    pub const LHIP: usize = 1;
+    pub const RHIP: usize = 2;
+    pub const BELLY: usize = 3;
+    pub const LKNEE: usize = 4;
+    pub const RKNEE: usize = 5;
+    pub const LANKLE: usize = 7;
+    pub const RANKLE: usize = 8;
+    pub const CHEST: usize = 9;
+    pub const LTOES: usize = 10;
+    pub const RTOES: usize = 11;
+    pub const NECK: usize = 12;
+    pub const LSHOULDER: usize = 16;
+    pub const RSHOULDER: usize = 17;
+    pub const LELBOW: usize = 18;
+    pub const RELBOW: usize = 19;
+    pub const LWRIST: usize = 20;
+    pub const RWRIST: usize = 21;
+}
+
+/// The geometric feature count.
+pub const GEOMETRIC_DIMS: usize = 32;
+
+/// The 32 boolean features per frame (from the second frame on), averaged
+/// over frames. Needs SMPL-24 positions.
+pub fn geometric_features(p: &[Vec3], joints: usize) -> Vec<f64> {
+    assert_eq!(joints, 24, "geometric features are defined on SMPL-24");
+    let rest = Motion::rest_positions(&Skeleton::smpl24());
+    let dist = |a: usize, b: usize| norm(sub(rest[a], rest[b]));
+    let hl = dist(j::LSHOULDER, j::LELBOW);
+    let sw = dist(j::LSHOULDER, j::RSHOULDER);
+    let hw = dist(j::LHIP, j::RHIP);
+    let n = p.len() / 24;
+    let tpf = 1.0 / 120.0;
+    let mut sum = vec![0.0; GEOMETRIC_DIMS];
+    for t in 1..n {
+        let cur = |k: usize| p[t * 24 + k];
+        let prv = |k: usize| p[(t - 1) * 24 + k];
+        let y_min = [
+            0.0,
+            (0..24).map(|k| cur(k)[1]).fold(f64::INFINITY, f64::min),
+            0.0,
+        ];
+        let zero = [0.0, 0.0, 0.0];
+        let y_up = [0.0, 1.0, 0.0];
+        let y_down = [0.0, -1.0, 0.0];
+        let unit = |v: Vec3| {
+            let l = norm(v);
+            if l > 0.0 {
+                [v[0] / l, v[1] / l, v[2] / l]
+            } else {
+                [0.0; 3]
+            }
+        };
+        // Velocity of `q` relative to `a` (per 1/120 s) along `dir`.
+        let rel_vel = |a: usize, q: usize, dir: Vec3| {
+            let v = sub(sub(cur(q), cur(a)), sub(prv(q), prv(a)));
+            dot(v, unit(dir)) / tpf
+        };
+        // f_move(j1, j2, j3): j3's velocity relative to j1 along j2 − j1.
+        let f_move =
+            |a: usize, b: usize, q: usize, th: f64| rel_vel(a, q, sub(cur(b), cur(a))) > th;
+        // f_nmove(j1, j2, j3, j4): j4's velocity relative to j1 along
+        // (j3 − j1) × (j2 − j1).
+        let f_nmove = |a: usize, b: usize, c: usize, q: usize, th: f64| {
+            rel_vel(a, q, cross(sub(cur(c), cur(a)), sub(cur(b), cur(a)))) > th
+        };
+        // Signed distance of q from the plane through a, b, c (normal
+        // (c − a) × (b − a)).
+        let f_plane = |a: Vec3, b: Vec3, c: Vec3, q: Vec3, th: f64| {
+            dot(unit(cross(sub(c, a), sub(b, a))), sub(q, a)) > th
+        };
+        // Distance of q from the plane through `a` with normal n2 − n1.
+        let f_nplane =
+            |n1: Vec3, n2: Vec3, a: Vec3, q: Vec3, th: f64| dot(unit(sub(n2, n1)), sub(q, a)) > th;
+        let angle = |a: Vec3, b: Vec3, c: Vec3, d: Vec3| {
+            let (u, v) = (sub(b, a), sub(d, c));
+            let cos = dot(u, v) / (norm(u) * norm(v)).max(1e-300);
+            cos.clamp(-1.0, 1.0).acos().to_degrees()
+        };
+        let f_angle = |a: Vec3, b: Vec3, c: Vec3, d: Vec3, lo: f64, hi: f64| {
+            let x = angle(a, b, c, d);
+            x > lo && x < hi
+        };
+        let f_fast = |q: usize, th: f64| norm(sub(cur(q), prv(q))) / tpf > th;
+        let c = cur;
+        let f = [
+            f_nmove(j::NECK, j::RHIP, j::LHIP, j::RWRIST, 1.8 * hl),
+            f_nmove(j::NECK, j::LHIP, j::RHIP, j::LWRIST, 1.8 * hl),
+            f_nplane(c(j::CHEST), c(j::NECK), c(j::NECK), c(j::RWRIST), 0.2 * hl),
+            f_nplane(c(j::CHEST), c(j::NECK), c(j::NECK), c(j::LWRIST), 0.2 * hl),
+            f_move(j::BELLY, j::CHEST, j::CHEST, 1.8 * hl),
+            f_move(j::BELLY, j::CHEST, j::CHEST, 1.8 * hl),
+            f_angle(
+                c(j::RELBOW),
+                c(j::RSHOULDER),
+                c(j::RELBOW),
+                c(j::RWRIST),
+                0.0,
+                110.0,
+            ),
+            f_angle(
+                c(j::LELBOW),
+                c(j::LSHOULDER),
+                c(j::LELBOW),
+                c(j::LWRIST),
+                0.0,
+                110.0,
+            ),
+            f_nplane(
+                c(j::LSHOULDER),
+                c(j::RSHOULDER),
+                c(j::LWRIST),
+                c(j::RWRIST),
+                2.5 * sw,
+            ),
+            f_move(j::LWRIST, j::RWRIST, j::RWRIST, 1.4 * hl),
+            f_move(j::RWRIST, j::ROOT, j::LWRIST, 1.4 * hl),
+            f_move(j::LWRIST, j::ROOT, j::RWRIST, 1.4 * hl),
+            f_fast(j::RWRIST, 2.5 * hl),
+            f_fast(j::LWRIST, 2.5 * hl),
+            f_plane(c(j::ROOT), c(j::LHIP), c(j::LTOES), c(j::RANKLE), 0.38 * hl),
+            f_plane(c(j::ROOT), c(j::RHIP), c(j::RTOES), c(j::LANKLE), 0.38 * hl),
+            f_nplane(zero, y_up, y_min, c(j::RANKLE), 1.2 * hl),
+            f_nplane(zero, y_up, y_min, c(j::LANKLE), 1.2 * hl),
+            f_nplane(c(j::LHIP), c(j::RHIP), c(j::LANKLE), c(j::RANKLE), 2.1 * hw),
+            f_angle(
+                c(j::RKNEE),
+                c(j::RHIP),
+                c(j::RKNEE),
+                c(j::RANKLE),
+                0.0,
+                110.0,
+            ),
+            f_angle(
+                c(j::LKNEE),
+                c(j::LHIP),
+                c(j::LKNEE),
+                c(j::LANKLE),
+                0.0,
+                110.0,
+            ),
+            f_fast(j::RANKLE, 2.5 * hl),
+            f_fast(j::LANKLE, 2.5 * hl),
+            f_angle(
+                c(j::NECK),
+                c(j::ROOT),
+                c(j::RSHOULDER),
+                c(j::RELBOW),
+                25.0,
+                180.0,
+            ),
+            f_angle(
+                c(j::NECK),
+                c(j::ROOT),
+                c(j::LSHOULDER),
+                c(j::LELBOW),
+                25.0,
+                180.0,
+            ),
+            f_angle(c(j::NECK), c(j::ROOT), c(j::RHIP), c(j::RKNEE), 50.0, 180.0),
+            f_angle(c(j::NECK), c(j::ROOT), c(j::LHIP), c(j::LKNEE), 50.0, 180.0),
+            f_plane(c(j::RANKLE), c(j::NECK), c(j::LANKLE), c(j::ROOT), 0.5 * hl),
+            f_angle(c(j::NECK), c(j::ROOT), zero, y_up, 70.0, 110.0),
+            f_nplane(zero, y_down, y_min, c(j::RWRIST), -1.2 * hl),
+            f_nplane(zero, y_down, y_min, c(j::LWRIST), -1.2 * hl),
+            f_fast(j::ROOT, 2.3 * hl),
+        ];
+        for (s, &b) in sum.iter_mut().zip(f.iter()) {
+            *s += b as u8 as f64;
+        }
+    }
+    let d = (n as f64 - 1.0).max(1.0);
+    sum.iter().map(|s| s / d).collect()
+}
+
+/// Fréchet distance between Gaussians fitted to two sets of feature vectors
+/// (rows), every dimension standardised by the real set's mean and
+/// standard deviation (dimensions with zero spread in the real set are
+/// left unscaled).
+pub fn fid(real: &[Vec<f64>], fake: &[Vec<f64>]) -> Option<f64> {
+    let d = real.first()?.len();
+    if real.len() < 2 || fake.len() < 2 || fake.iter().chain(real).any(|r| r.len() != d) {
+        return None;
+    }
+    let mean = |x: &[Vec<f64>]| -> Vec<f64> {
+        (0..d)
+            .map(|k| x.iter().map(|r| r[k]).sum::<f64>() / x.len() as f64)
+            .collect()
+    };
+    let mu_r = mean(real);
+    let sd: Vec<f64> = (0..d)
+        .map(|k| {
+            let v = real.iter().map(|r| (r[k] - mu_r[k]).powi(2)).sum::<f64>()
+                / (real.len() - 1) as f64;
+            if v > 1e-24 {
+                v.sqrt()
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let norm_set = |x: &[Vec<f64>]| -> Vec<Vec<f64>> {
+        x.iter()
+            .map(|r| (0..d).map(|k| (r[k] - mu_r[k]) / sd[k]).collect())
+            .collect()
+    };
+    let (a, b) = (norm_set(real), norm_set(fake));
+    let (ma, mb) = (mean(&a), mean(&b));
+    let cov = |x: &[Vec<f64>], m: &[f64]| -> Vec<f64> {
+        let mut c = vec![0.0; d * d];
+        for r in x {
+            for i in 0..d {
+                let di = r[i] - m[i];
+                for k in i..d {
+                    c[i * d + k] += di * (r[k] - m[k]);
+                }
+            }
+        }
+        for i in 0..d {
+            for k in i..d {
+                let v = c[i * d + k] / (x.len() - 1) as f64;
+                c[i * d + k] = v;
+                c[k * d + i] = v;
+            }
+        }
+        c
+    };
+    let (ca, cb) = (cov(&a, &ma), cov(&b, &mb));
+    // Tr √(Ca Cb) = Σ √λ(√Ca Cb √Ca).
+    let (va, ea) = jacobi_eigen(ca.clone(), d);
+    let mut sq = vec![0.0; d * d];
+    for i in 0..d {
+        for k in 0..d {
+            sq[i * d + k] = (0..d)
+                .map(|m| ea[i * d + m] * va[m].max(0.0).sqrt() * ea[k * d + m])
+                .sum();
+        }
+    }
+    let mut t = vec![0.0; d * d];
+    for i in 0..d {
+        for k in 0..d {
+            t[i * d + k] = (0..d).map(|m| sq[i * d + m] * cb[m * d + k]).sum();
+        }
+    }
+    let mut mmat = vec![0.0; d * d];
+    for i in 0..d {
+        for k in 0..d {
+            mmat[i * d + k] = (0..d).map(|m| t[i * d + m] * sq[m * d + k]).sum();
+        }
+    }
+    for i in 0..d {
+        for k in i + 1..d {
+            let s = 0.5 * (mmat[i * d + k] + mmat[k * d + i]);
+            mmat[i * d + k] = s;
+            mmat[k * d + i] = s;
+        }
+    }
+    let (vm, _) = jacobi_eigen(mmat, d);
+    let tr_sqrt: f64 = vm.iter().map(|v| v.max(0.0).sqrt()).sum();
+    let tr_a: f64 = (0..d).map(|i| ca[i * d + i]).sum();
+    let tr_b: f64 = (0..d).map(|i| cb[i * d + i]).sum();
+    let dm: f64 = ma.iter().zip(&mb).map(|(x, y)| (x - y).powi(2)).sum();
+    Some((dm + tr_a + tr_b - 2.0 * tr_sqrt).max(0.0))
+}
+
+/// Kinematic beats: local minima of the mean joint speed after a Gaussian
+/// smoothing of σ = 5 frames (as AIST++'s evaluation finds them).
+pub fn motion_beats(p: &[Vec3], joints: usize) -> Vec<usize> {
+    let n = p.len() / joints.max(1);
+    if n < 3 {
+        return vec![];
+    }
+    let speed: Vec<f64> = (0..n)
+        .map(|t| {
+            let (a, b) = (t.saturating_sub(1), if t == 0 { 1 } else { t });
+            (0..joints)
+                .map(|k| norm(sub(p[b * joints + k], p[a * joints + k])))
+                .sum::<f64>()
+                / joints as f64
+        })
+        .collect();
+    let s = gaussian_smooth(&speed, 5.0);
+    (1..n - 1)
+        .filter(|&t| s[t] < s[t - 1] && s[t] < s[t + 1])
+        .collect()
+}
+
+/// Gaussian smoothing with reflected edges, truncated at 4σ.
+pub fn gaussian_smooth(x: &[f64], sigma: f64) -> Vec<f64> {
+    let r = (4.0 * sigma).ceil() as i64;
+    let w: Vec<f64> = (-r..=r)
+        .map(|k| (-(k * k) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let ws: f64 = w.iter().sum();
+    let n = x.len() as i64;
+    let at = |i: i64| -> f64 {
+        let mut i = i;
+        while i < 0 || i >= n {
+            i = if i < 0 { -i - 1 } else { 2 * n - i - 1 };
+        }
+        x[i as usize]
+    };
+    (0..n)
+        .map(|t| (-r..=r).zip(&w).map(|(k, wk)| wk * at(t + k)).sum::<f64>() / ws)
+        .collect()
+}
+
+/// Beat alignment, σ = 3 frames, both directions:
+/// `music_to_motion` = mean over music beats of exp(−d²/2σ²), d the
+/// distance to the nearest kinematic beat (the code of Bailando and of the
+/// AIST++ metric scripts); `motion_to_music` = the same over kinematic
+/// beats to the nearest music beat (the AIST++ paper's wording). `None`
+/// when either list is empty.
+pub fn beat_alignment(music: &[usize], motion: &[usize], sigma: f64) -> Option<(f64, f64)> {
+    if music.is_empty() || motion.is_empty() {
+        return None;
+    }
+    let score = |from: &[usize], to: &[usize]| {
+        from.iter()
+            .map(|&a| {
+                let d = to
+                    .iter()
+                    .map(|&b| (a as f64 - b as f64).abs())
+                    .fold(f64::INFINITY, f64::min);
+                (-d * d / (2.0 * sigma * sigma)).exp()
+            })
+            .sum::<f64>()
+            / from.len() as f64
+    };
+    Some((score(music, motion), score(motion, music)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fid_of_identical_sets_is_zero_and_grows_with_a_shift() {
+        let a: Vec<Vec<f64>> = (0..50)
+            .map(|i| {
+                vec![
+                    (i as f64 * 0.37).sin(),
+                    (i as f64 * 0.11).cos(),
+                    i as f64 * 0.01,
+                ]
+            })
+            .collect();
+        assert!(fid(&a, &a).unwrap() < 1e-9);
+        let shifted: Vec<Vec<f64>> = a
+            .iter()
+            .map(|r| r.iter().map(|v| v + 0.5).collect())
+            .collect();
+        let f1 = fid(&a, &shifted).unwrap();
+        let more: Vec<Vec<f64>> = a
+            .iter()
+            .map(|r| r.iter().map(|v| v + 1.0).collect())
+            .collect();
+        let f2 = fid(&a, &more).unwrap();
+        assert!(f1 > 0.1 && f2 > 3.0 * f1, "{f1} {f2}");
+        assert!(fid(&a[..1], &a).is_none());
+    }
+
+    #[test]
+    fn beat_alignment_by_hand() {
+        let (m2k, k2m) = beat_alignment(&[0, 30, 60], &[0, 33], 3.0).unwrap();
+        // Music 0 → 0 (1), 30 → 33 (e^{-0.5}), 60 → 33 (e^{-40.5}).
+        let want = (1.0 + (-0.5f64).exp() + (-40.5f64).exp()) / 3.0;
+        assert!((m2k - want).abs() < 1e-12);
+        assert!((k2m - (1.0 + (-0.5f64).exp()) / 2.0).abs() < 1e-12);
+        assert!(beat_alignment(&[], &[1], 3.0).is_none());
+    }
+
+    #[test]
+    fn kinetic_features_of_constant_velocity() {
+        // One joint moving 1 m/s along x at 60 fps: horizontal KE 1, vertical
+        // 0, acceleration 0.
+        let p: Vec<Vec3> = (0..30).map(|t| [t as f64 / 60.0, 0.0, 0.0]).collect();
+        let k = kinetic_features(&p, 1, 60.0);
+        assert!(
+            (k[0] - 1.0).abs() < 1e-9 && k[1].abs() < 1e-12 && k[2].abs() < 1e-6,
+            "{k:?}"
+        );
+    }
+
+    #[test]
+    fn geometric_features_of_a_still_rest_pose() {
+        let rest = Motion::rest_positions(&Skeleton::smpl24());
+        let p: Vec<Vec3> = (0..5).flat_map(|_| rest.iter().copied()).collect();
+        let g = geometric_features(&p, 24);
+        assert_eq!(g.len(), GEOMETRIC_DIMS);
+        // Nothing moves: every velocity feature is 0.
+        for k in [0, 1, 4, 5, 9, 10, 11, 12, 13, 21, 22, 31] {
+            assert_eq!(g[k], 0.0, "feature {k}");
+        }
+        // Standing upright: the neck–root line is vertical, not within 70–110°
+        // of up; the knees are straight (180°, not within 0–110°).
+        assert_eq!(g[28], 0.0);
+        assert_eq!((g[19], g[20]), (0.0, 0.0));
+    }
+}

@@ -1,0 +1,314 @@
+//! Keyframe selection + in-between reconstruction of a motion, and `eval
+//! keyframes` (thesis 001 Tables 4.1–4.7 shape).
+
+use crate::features::smpl24_at_60;
+use crate::keyframes::inbetween::{self, BezierOffsets};
+use crate::keyframes::metrics::{fid, geometric_features, kinetic_features, mse, per_frame_error};
+use crate::keyframes::{
+    beat_frames, dp, even, frames_per_measure, from_peaks, position_curve, SegmentCost,
+};
+use crate::motion::io::{read_path, ReadOptions};
+use crate::motion::{Motion, MotionError};
+use serde::Serialize;
+use std::path::PathBuf;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Select {
+    Even,
+    Onset,
+    Percussive,
+    Nmfd,
+    Dp,
+}
+
+impl Select {
+    pub fn parse(s: &str) -> Option<Select> {
+        Some(match s {
+            "even" => Select::Even,
+            "onset" => Select::Onset,
+            "percussive" => Select::Percussive,
+            "nmfd" => Select::Nmfd,
+            "dp" => Select::Dp,
+            _ => return None,
+        })
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            Select::Even => "even",
+            Select::Onset => "onset",
+            Select::Percussive => "percussive",
+            Select::Nmfd => "nmfd",
+            Select::Dp => "dp",
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Inbetween {
+    Slerp,
+    Bezier,
+    /// Bézier with control points averaged over training data.
+    BezierAverage(#[serde(skip)] BezierOffsets),
+}
+
+impl Inbetween {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Inbetween::Slerp => "slerp",
+            Inbetween::Bezier => "bezier",
+            Inbetween::BezierAverage(_) => "bezier-avg",
+        }
+    }
+}
+
+/// Where the music comes from.
+#[derive(Clone, Debug)]
+pub enum Music {
+    None,
+    /// A metronome at this tempo: its onsets are exactly the beats.
+    Bpm(f64),
+}
+
+#[derive(Clone, Debug)]
+pub struct KeyframeRequest {
+    pub select: Select,
+    pub inbetween: Inbetween,
+    pub count: usize,
+    pub music: Music,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct KeyframeReport {
+    pub keyframes: Vec<usize>,
+    /// Eq. 2.8 on FK joint positions, m².
+    pub mse: f64,
+    /// Per frame, mean over joints of the squared position error, m².
+    pub per_frame_error: Vec<f64>,
+    pub frames: usize,
+    pub fps: f64,
+    pub select: Select,
+    pub inbetween: String,
+}
+
+/// Keyframes of a (SMPL-24, 60 fps) clip by a strategy.
+pub fn select_keyframes(
+    m: &Motion,
+    select: Select,
+    count: usize,
+    music: &Music,
+) -> Result<Vec<usize>, MotionError> {
+    let n = m.frames();
+    match select {
+        Select::Even => even(n, count),
+        Select::Dp => {
+            let p = m.positions();
+            let cost = SegmentCost::new(position_curve(&p), 3 * m.joints());
+            Ok(dp(&cost, count, None)?.0)
+        }
+        Select::Onset => match music {
+            Music::Bpm(bpm) => {
+                let beats = beat_frames(*bpm, m.fps, n)?;
+                let mut curve = vec![0.0; n];
+                beats.iter().for_each(|&b| curve[b] = 1.0);
+                // Peaks near the ends are dropped within a tenth of a beat.
+                let guard = (0.1 * 60.0 / bpm * m.fps).round() as usize;
+                from_peaks(&curve, &beats, count, guard)
+            }
+            Music::None => Err(MotionError::invalid(
+                "keyframes",
+                "music",
+                "onset selection needs music: give --bpm (a metronome at that tempo)",
+            )),
+        },
+        Select::Percussive | Select::Nmfd => Err(MotionError::invalid(
+            "keyframes",
+            "select",
+            format!(
+                "'{}' needs audio analysis (harmonic/percussive separation), which this build does not have yet; use even, onset (with --bpm) or dp",
+                select.name()
+            ),
+        )),
+    }
+}
+
+/// Rebuild a clip's in-betweens from keyframes.
+pub fn rebuild(m: &Motion, keys: &[usize], how: &Inbetween) -> Result<Motion, MotionError> {
+    match how {
+        Inbetween::Slerp => inbetween::slerp(m, keys),
+        Inbetween::Bezier => inbetween::bezier(m, keys),
+        Inbetween::BezierAverage(off) => off.apply(m, keys),
+    }
+}
+
+/// Select keyframes of any motion (brought to SMPL-24 at 60 fps) and rebuild
+/// it; returns the rebuilt motion and the report.
+pub fn reconstruct(
+    m: &Motion,
+    req: &KeyframeRequest,
+) -> Result<(Motion, KeyframeReport), MotionError> {
+    let m = smpl24_at_60(m)?;
+    let keys = select_keyframes(&m, req.select, req.count, &req.music)?;
+    let r = rebuild(&m, &keys, &req.inbetween)?;
+    let (pa, pb) = (m.positions(), r.positions());
+    let report = KeyframeReport {
+        mse: mse(&pa, &pb),
+        per_frame_error: per_frame_error(&pa, &pb, m.joints()),
+        frames: m.frames(),
+        fps: m.fps,
+        keyframes: keys,
+        select: req.select,
+        inbetween: req.inbetween.name().to_string(),
+    };
+    Ok((r, report))
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalRow {
+    pub select: Select,
+    pub inbetween: String,
+    pub keyframes_per_measure: usize,
+    pub segments: usize,
+    /// Mean over segments of Eq. 2.8, cm².
+    pub mse_cm2: f64,
+    pub fid_k: Option<f64>,
+    pub fid_g: Option<f64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalKeyframes {
+    pub rows: Vec<EvalRow>,
+    pub clips: Vec<ClipInfo>,
+    pub errors: Vec<String>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ClipInfo {
+    pub name: String,
+    pub bpm: f64,
+    pub tempo_known: bool,
+    pub frames_per_measure: usize,
+    pub measures: usize,
+}
+
+/// Thesis 001's protocol: every clip (SMPL-24, 60 fps) is cut into 4/4
+/// measures at its tempo (`tempo_bpm` label, else `default_bpm`); each
+/// measure is one sample whose first and last frames are keyframes. For 3,
+/// 5 and 9 keyframes per measure and every (selection, in-between) pair:
+/// mean MSE over measures, and FID_k / FID_g between the sets of original
+/// and rebuilt measures. Bézier-average offsets for a clip are fitted on the
+/// other clips' measures (leave one clip out) with the same selection.
+pub fn eval_keyframes(
+    files: &[PathBuf],
+    default_bpm: f64,
+    counts: &[usize],
+) -> Result<EvalKeyframes, MotionError> {
+    let mut clips = vec![];
+    let mut infos = vec![];
+    let mut errors = vec![];
+    for f in files {
+        let m = match read_path(f, &ReadOptions::default()).and_then(|l| smpl24_at_60(&l.motion)) {
+            Ok(m) => m,
+            Err(e) => {
+                errors.push(e.to_string());
+                continue;
+            }
+        };
+        let (bpm, known) = match m
+            .labels
+            .get("tempo_bpm")
+            .and_then(|t| t.parse::<f64>().ok())
+        {
+            Some(b) => (b, true),
+            None => (default_bpm, false),
+        };
+        let fpm = frames_per_measure(bpm, m.fps).round() as usize;
+        let measures: Vec<Motion> = (0..)
+            .map(|k| k * fpm)
+            .take_while(|&s| s + fpm < m.frames())
+            .filter_map(|s| m.cut(s, s + fpm + 1).ok())
+            .collect();
+        infos.push(ClipInfo {
+            name: m.name.clone(),
+            bpm,
+            tempo_known: known,
+            frames_per_measure: fpm,
+            measures: measures.len(),
+        });
+        clips.push((measures, bpm));
+    }
+    let total: usize = clips.iter().map(|c| c.0.len()).sum();
+    if total == 0 {
+        return Err(MotionError::invalid(
+            "eval keyframes",
+            "data",
+            "no clip holds a whole measure",
+        ));
+    }
+    let selects = [Select::Even, Select::Onset, Select::Dp];
+    let mut rows = vec![];
+    for &count in counts {
+        for &sel in &selects {
+            // Keyframes of every measure of every clip, once per selection.
+            let keys: Vec<Vec<Vec<usize>>> = clips
+                .iter()
+                .map(|(ms, bpm)| {
+                    ms.iter()
+                        .map(|m| select_keyframes(m, sel, count, &Music::Bpm(*bpm)))
+                        .collect::<Result<Vec<_>, _>>()
+                })
+                .collect::<Result<_, _>>()?;
+            for how in ["slerp", "bezier", "bezier-avg"] {
+                let mut mse_sum = 0.0;
+                let (mut real_k, mut fake_k, mut real_g, mut fake_g) =
+                    (vec![], vec![], vec![], vec![]);
+                for (ci, (ms, _)) in clips.iter().enumerate() {
+                    let method = match how {
+                        "slerp" => Inbetween::Slerp,
+                        "bezier" => Inbetween::Bezier,
+                        _ => {
+                            let train: Vec<(&Motion, Vec<usize>)> = clips
+                                .iter()
+                                .enumerate()
+                                .filter(|(cj, _)| *cj != ci)
+                                .flat_map(|(cj, (ms2, _))| ms2.iter().zip(keys[cj].iter().cloned()))
+                                .collect();
+                            if train.is_empty() {
+                                continue;
+                            }
+                            Inbetween::BezierAverage(BezierOffsets::fit(&train)?)
+                        }
+                    };
+                    for (m, k) in ms.iter().zip(&keys[ci]) {
+                        let r = rebuild(m, k, &method)?;
+                        let (pa, pb) = (m.positions(), r.positions());
+                        mse_sum += mse(&pa, &pb) * 1e4;
+                        real_k.push(kinetic_features(&pa, 24, m.fps));
+                        fake_k.push(kinetic_features(&pb, 24, m.fps));
+                        real_g.push(geometric_features(&pa, 24));
+                        fake_g.push(geometric_features(&pb, 24));
+                    }
+                }
+                let segments = real_k.len();
+                if segments == 0 {
+                    continue;
+                }
+                rows.push(EvalRow {
+                    select: sel,
+                    inbetween: how.to_string(),
+                    keyframes_per_measure: count,
+                    segments,
+                    mse_cm2: mse_sum / segments as f64,
+                    fid_k: fid(&real_k, &fake_k),
+                    fid_g: fid(&real_g, &fake_g),
+                });
+            }
+        }
+    }
+    Ok(EvalKeyframes {
+        rows,
+        clips: infos,
+        errors,
+    })
+}
