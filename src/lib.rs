@@ -25,6 +25,7 @@
 //! assert!(p[15][1] > p[0][1] && p[7][1] < p[0][1]);
 //! ```
 
+pub mod audio;
 pub mod data;
 pub mod features;
 pub mod index;

@@ -363,6 +363,14 @@ enum DevCmd {
         #[arg(long)]
         pca_on: Vec<PathBuf>,
     },
+    /// Decode and analyse a music file; write the 30,720 Hz mono samples
+    /// (y.npy, float32) and the features (features.json) into --out.
+    Audio {
+        #[arg(long)]
+        music: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Read `{"quats": [[w,x,y,z]...], "orders": ["ZXY", "xyz", ...]}` on stdin;
     /// print every conversion as JSON.
     Rotations,
@@ -459,6 +467,34 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Dev {
             cmd: DevCmd::Rotations,
         } => dev_rotations(),
+        Cmd::Dev {
+            cmd: DevCmd::Audio { music, out },
+        } => {
+            let a = choreo::audio::read(&music)?;
+            let t = std::time::Instant::now();
+            let (y, f) = choreo::audio::analyse(&a, &music.display().to_string())?;
+            let seconds = t.elapsed().as_secs_f64();
+            std::fs::create_dir_all(&out)?;
+            let arr = io::npy::NdArray {
+                shape: vec![y.len()],
+                data: y.iter().map(|&v| v as f64).collect(),
+            };
+            std::fs::write(out.join("y.npy"), arr.to_npy(true))?;
+            let mut v = serde_json::to_value(&f)?;
+            v["analysis_seconds"] = json!(seconds);
+            std::fs::write(out.join("features.json"), v.to_string())?;
+            eprintln!(
+                "{}: {:.1} s of audio at {} Hz ({} ch) → {} frames, {} onset peaks, {} percussive peaks, analysed in {seconds:.2} s",
+                music.display(),
+                f.seconds,
+                f.source_rate,
+                f.channels,
+                f.frames,
+                f.peaks.len(),
+                f.percussive_peaks.len()
+            );
+            Ok(())
+        }
         Cmd::Dev {
             cmd:
                 DevCmd::Features {
@@ -1300,18 +1336,21 @@ fn keyframes_cmd(
         "bezier" => Inbetween::Bezier,
         other => bail!("--inbetween: '{other}' is not slerp or bezier"),
     };
-    if let Some(p) = music {
-        bail!(
-            "--music {}: audio analysis is not in this build yet; give the tempo with --bpm",
-            p.display()
-        );
-    }
+    let music = match (music, bpm) {
+        (Some(p), _) => {
+            let a = choreo::audio::read(&p)?;
+            let (_, f) = choreo::audio::analyse(&a, &p.display().to_string())?;
+            Music::Audio(Box::new(f))
+        }
+        (None, Some(b)) => Music::Bpm(b),
+        (None, None) => Music::None,
+    };
     let m = io::read_path(&motion, &ReadOptions::default())?.motion;
     let req = KeyframeRequest {
         select,
         inbetween,
         count,
-        music: bpm.map(Music::Bpm).unwrap_or(Music::None),
+        music,
     };
     let (r, report) =
         reconstruct(&m, &req).map_err(|e| anyhow::anyhow!("{}: {e}", motion.display()))?;

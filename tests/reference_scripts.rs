@@ -22,15 +22,17 @@ fn python_with(modules: &str) -> bool {
     ok
 }
 
-fn run_script(script: &str, with_data: bool) {
+/// Run a script with the choreo binary and, when `data` names a folder of
+/// the data root that must exist, the data root.
+fn run_script(script: &str, data: Option<&str>) {
     let mut cmd = Command::new("python3");
     cmd.arg(format!("{}/scripts/{script}", env!("CARGO_MANIFEST_DIR")))
         .arg(env!("CARGO_BIN_EXE_choreo"));
-    if with_data {
-        let Some(root) = choreo::data::require("aistpp") else {
+    if let Some(rel) = data {
+        let Some(dir) = choreo::data::require(rel) else {
             return;
         };
-        cmd.arg(root.parent().expect("data root"));
+        cmd.arg(dir.parent().expect("data root"));
     }
     let out = cmd.output().expect("python3 runs");
     let text = format!(
@@ -45,27 +47,34 @@ fn run_script(script: &str, with_data: bool) {
 #[test]
 fn rotations_agree_with_scipy() {
     if python_with("numpy, scipy") {
-        run_script("check_rotations.py", false);
+        run_script("check_rotations.py", None);
     }
 }
 
 #[test]
 fn bvh_output_reads_in_bvhio() {
     if python_with("numpy, bvhio") {
-        run_script("check_bvh_bvhio.py", true);
+        run_script("check_bvh_bvhio.py", Some("aistpp"));
     }
 }
 
 #[test]
 fn amass_npz_agrees_with_numpy() {
     if python_with("numpy, scipy") {
-        run_script("check_amass_npz.py", true);
+        run_script("check_amass_npz.py", Some("aistpp"));
     }
 }
 
 #[test]
 fn embeddings_agree_with_scipy_and_numpy() {
     if python_with("numpy, scipy") {
-        run_script("check_features.py", true);
+        run_script("check_features.py", Some("aistpp"));
+    }
+}
+
+#[test]
+fn music_features_agree_with_librosa() {
+    if python_with("numpy, librosa") {
+        run_script("check_audio_librosa.py", Some("music"));
     }
 }

@@ -69,6 +69,34 @@ pub enum Music {
     None,
     /// A metronome at this tempo: its onsets are exactly the beats.
     Bpm(f64),
+    /// Analysed audio, 60 feature frames a second, frame-aligned with the
+    /// motion from its first frame.
+    Audio(Box<crate::audio::MusicFeatures>),
+}
+
+/// The onset curve and peaks (motion-length, 60 fps) a strategy reads.
+fn onset_curve(
+    music: &Music,
+    select: Select,
+    n: usize,
+) -> Result<(Vec<f64>, Vec<usize>), MotionError> {
+    let fit =
+        |c: &[f64]| -> Vec<f64> { (0..n).map(|i| c.get(i).copied().unwrap_or(0.0)).collect() };
+    let (curve, peaks) = match (music, select) {
+        (Music::Audio(f), Select::Onset) => (fit(&f.onset), f.peaks.clone()),
+        (Music::Audio(f), Select::Percussive) => {
+            (fit(&f.percussive_onset), f.percussive_peaks.clone())
+        }
+        _ => unreachable!("called for audio-based strategies only"),
+    };
+    if curve.iter().all(|&v| v == 0.0) {
+        return Err(MotionError::invalid(
+            "keyframes",
+            "music",
+            "the music has no onsets over the clip (is it silent?)",
+        ));
+    }
+    Ok((curve, peaks.into_iter().filter(|&p| p < n).collect()))
 }
 
 #[derive(Clone, Debug)]
@@ -107,6 +135,13 @@ pub fn select_keyframes(
             let cost = SegmentCost::new(position_curve(&p), 3 * m.joints());
             Ok(dp(&cost, count, None)?.0)
         }
+        Select::Onset | Select::Percussive if matches!(music, Music::Audio(_)) => {
+            if (m.fps - 60.0).abs() > 1e-9 {
+                return Err(MotionError::invalid("keyframes", "fps", "music-based selection needs the clip at 60 fps"));
+            }
+            let (curve, peaks) = onset_curve(music, select, n)?;
+            from_peaks(&curve, &peaks, count, 3)
+        }
         Select::Onset => match music {
             Music::Bpm(bpm) => {
                 let beats = beat_frames(*bpm, m.fps, n)?;
@@ -116,17 +151,22 @@ pub fn select_keyframes(
                 let guard = (0.1 * 60.0 / bpm * m.fps).round() as usize;
                 from_peaks(&curve, &beats, count, guard)
             }
-            Music::None => Err(MotionError::invalid(
+            _ => Err(MotionError::invalid(
                 "keyframes",
                 "music",
-                "onset selection needs music: give --bpm (a metronome at that tempo)",
+                "onset selection needs music: give --music FILE or --bpm (a metronome at that tempo)",
             )),
         },
-        Select::Percussive | Select::Nmfd => Err(MotionError::invalid(
+        Select::Percussive => Err(MotionError::invalid(
+            "keyframes",
+            "music",
+            "percussive selection needs an audio file (--music)",
+        )),
+        Select::Nmfd => Err(MotionError::invalid(
             "keyframes",
             "select",
             format!(
-                "'{}' needs audio analysis (harmonic/percussive separation), which this build does not have yet; use even, onset (with --bpm) or dp",
+                "'{}' (NMFD activations) is not built yet; use even, onset, percussive or dp",
                 select.name()
             ),
         )),

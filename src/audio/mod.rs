@@ -1,0 +1,648 @@
+//! Music features for keyframe selection (thesis 001 §3.3.2, SPEC §6).
+//!
+//! Audio (WAV, Ogg Vorbis, MP3 via symphonia) is mixed to mono and
+//! resampled to 30,720 Hz (a Kaiser-windowed sinc), so that a hop of 512
+//! gives exactly 60 feature frames per second, one per 60 fps motion frame.
+//! Then, following librosa's definitions (checked against librosa by
+//! `scripts/check_audio_librosa.py`):
+//!
+//! - power spectrogram: STFT, periodic Hann of 2,048, hop 512, centred with
+//!   zero padding;
+//! - 128-band mel spectrogram (Slaney scale and normalisation, 0 Hz to
+//!   Nyquist), in dB (`10·log10(max(S, 1e-10))`, floored 80 dB below the
+//!   maximum);
+//! - 20 MFCC: orthonormal DCT-II of the dB mel spectrogram;
+//! - onset strength: mean over bands of the positive first difference of
+//!   the dB mel spectrogram, shifted 3 frames (lag 1 + the centring
+//!   offset) like librosa's;
+//! - onset peaks: librosa's `onset_detect` peak picker on the [0, 1]
+//!   normalised curve.
+//!
+//! Harmonic/percussive separation ([`hpss_percussive`]) is median
+//! filtering (Fitzgerald 2010, as librosa's `hpss`): it stands in for the
+//! thesis's neural drum-stem separation.
+
+use crate::motion::MotionError;
+use rustfft::{num_complex::Complex, FftPlanner};
+
+pub const SAMPLE_RATE: u32 = 30_720;
+pub const N_FFT: usize = 2048;
+pub const HOP: usize = 512;
+pub const N_MELS: usize = 128;
+pub const N_MFCC: usize = 20;
+/// Feature frames per second (`SAMPLE_RATE / HOP`).
+pub const FEATURE_FPS: f64 = 60.0;
+/// Longest audio accepted, seconds.
+pub const MAX_SECONDS: f64 = 3600.0;
+
+fn bad(file: &str, field: &str, reason: impl Into<String>) -> MotionError {
+    MotionError::invalid(file, field, reason)
+}
+
+/// Mono audio.
+#[derive(Clone, Debug)]
+pub struct Audio {
+    pub sample_rate: u32,
+    pub samples: Vec<f32>,
+    /// Channels in the source before the mono mix.
+    pub channels: usize,
+}
+
+impl Audio {
+    pub fn seconds(&self) -> f64 {
+        self.samples.len() as f64 / self.sample_rate as f64
+    }
+}
+
+/// Decode a WAV / Ogg Vorbis / MP3 file's bytes (the extension, if any, is
+/// a hint) to mono f32.
+pub fn decode(bytes: Vec<u8>, name: &str, extension: Option<&str>) -> Result<Audio, MotionError> {
+    use symphonia::core::audio::SampleBuffer;
+    use symphonia::core::codecs::{DecoderOptions, CODEC_TYPE_NULL};
+    use symphonia::core::errors::Error;
+    use symphonia::core::formats::FormatOptions;
+    use symphonia::core::io::MediaSourceStream;
+    use symphonia::core::meta::MetadataOptions;
+    use symphonia::core::probe::Hint;
+    if bytes.is_empty() {
+        return Err(bad(name, "audio", "the file is empty"));
+    }
+    let mss = MediaSourceStream::new(Box::new(std::io::Cursor::new(bytes)), Default::default());
+    let mut hint = Hint::new();
+    if let Some(e) = extension {
+        hint.with_extension(e);
+    }
+    let probed = symphonia::default::get_probe()
+        .format(
+            &hint,
+            mss,
+            &FormatOptions::default(),
+            &MetadataOptions::default(),
+        )
+        .map_err(|e| {
+            bad(
+                name,
+                "audio",
+                format!("not a readable WAV, Ogg or MP3 file ({e})"),
+            )
+        })?;
+    let mut format = probed.format;
+    let track = format
+        .tracks()
+        .iter()
+        .find(|t| t.codec_params.codec != CODEC_TYPE_NULL)
+        .ok_or_else(|| bad(name, "audio", "no audio track"))?;
+    let track_id = track.id;
+    let mut decoder = symphonia::default::get_codecs()
+        .make(&track.codec_params, &DecoderOptions::default())
+        .map_err(|e| bad(name, "codec", format!("unsupported codec ({e})")))?;
+    let mut rate = track.codec_params.sample_rate.unwrap_or(0);
+    let mut channels = 0usize;
+    let mut mono: Vec<f32> = Vec::new();
+    let mut buf: Option<SampleBuffer<f32>> = None;
+    loop {
+        let packet = match format.next_packet() {
+            Ok(p) => p,
+            Err(Error::IoError(e)) if e.kind() == std::io::ErrorKind::UnexpectedEof => break,
+            Err(Error::ResetRequired) => break,
+            Err(e) => return Err(bad(name, "audio", format!("corrupt stream ({e})"))),
+        };
+        if packet.track_id() != track_id {
+            continue;
+        }
+        let decoded = match decoder.decode(&packet) {
+            Ok(d) => d,
+            // A damaged packet is skipped, as players do.
+            Err(Error::DecodeError(_)) => continue,
+            Err(e) => return Err(bad(name, "audio", format!("cannot decode ({e})"))),
+        };
+        let spec = *decoded.spec();
+        rate = spec.rate;
+        channels = spec.channels.count().max(1);
+        if buf
+            .as_ref()
+            .is_none_or(|b| b.capacity() < decoded.capacity() * channels)
+        {
+            buf = Some(SampleBuffer::new(decoded.capacity() as u64, spec));
+        }
+        let b = buf.as_mut().expect("allocated above");
+        b.copy_interleaved_ref(decoded);
+        for frame in b.samples().chunks(channels) {
+            mono.push(frame.iter().sum::<f32>() / channels as f32);
+        }
+        if rate > 0 && mono.len() as f64 / rate as f64 > MAX_SECONDS {
+            return Err(bad(name, "audio", format!("longer than {MAX_SECONDS} s")));
+        }
+    }
+    if rate == 0 || !(1000..=768_000).contains(&rate) {
+        return Err(bad(
+            name,
+            "sample_rate",
+            format!("{rate} Hz is not a usable sample rate"),
+        ));
+    }
+    if mono.is_empty() {
+        return Err(bad(name, "audio", "no samples decoded"));
+    }
+    if mono.iter().any(|v| !v.is_finite()) {
+        return Err(bad(name, "audio", "holds NaN or infinite samples"));
+    }
+    Ok(Audio {
+        sample_rate: rate,
+        samples: mono,
+        channels,
+    })
+}
+
+pub fn read(path: &std::path::Path) -> Result<Audio, MotionError> {
+    let name = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|e| MotionError::Io {
+        file: name.clone(),
+        source: e,
+    })?;
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase());
+    decode(bytes, &name, ext.as_deref())
+}
+
+fn bessel_i0(x: f64) -> f64 {
+    let (mut sum, mut term, mut k) = (1.0, 1.0, 1.0);
+    while term > 1e-12 * sum {
+        term *= (x / (2.0 * k)).powi(2);
+        sum += term;
+        k += 1.0;
+    }
+    sum
+}
+
+/// Band-limited resampling with a Kaiser-windowed sinc (32 zero crossings
+/// at the lower rate, β = 8.6, cut-off at 95 % of the lower Nyquist).
+pub fn resample(x: &[f32], from: u32, to: u32) -> Vec<f32> {
+    if from == to || x.is_empty() {
+        return x.to_vec();
+    }
+    let ratio = to as f64 / from as f64;
+    let cutoff = ratio.min(1.0) * 0.95;
+    let zeros = 32.0;
+    let half = zeros / cutoff; // half-width in input samples
+    let beta = 8.6;
+    let i0b = bessel_i0(beta);
+    // Tabulated kernel over [0, half], 512 points per input sample.
+    let per = 512.0;
+    let len = (half * per).ceil() as usize + 2;
+    let table: Vec<f64> = (0..len)
+        .map(|i| {
+            let u = i as f64 / per;
+            if u > half {
+                return 0.0;
+            }
+            let s = if u == 0.0 {
+                1.0
+            } else {
+                (std::f64::consts::PI * cutoff * u).sin() / (std::f64::consts::PI * cutoff * u)
+            };
+            let w = bessel_i0(beta * (1.0 - (u / half).powi(2)).max(0.0).sqrt()) / i0b;
+            cutoff * s * w
+        })
+        .collect();
+    let h = |u: f64| -> f64 {
+        let p = u.abs() * per;
+        let i = p as usize;
+        if i + 1 >= len {
+            return 0.0;
+        }
+        let f = p - i as f64;
+        table[i] * (1.0 - f) + table[i + 1] * f
+    };
+    let n_out = ((x.len() as f64) * ratio).ceil() as usize;
+    (0..n_out)
+        .map(|n| {
+            let t = n as f64 / ratio;
+            let lo = (t - half).ceil().max(0.0) as usize;
+            let hi = ((t + half).floor() as usize).min(x.len() - 1);
+            let mut acc = 0.0;
+            for (k, &v) in x.iter().enumerate().take(hi + 1).skip(lo) {
+                acc += v as f64 * h(t - k as f64);
+            }
+            acc as f32
+        })
+        .collect()
+}
+
+/// `[frames][N_FFT/2 + 1]` power spectrogram (|X|²), centred STFT with zero
+/// padding, periodic Hann.
+pub fn power_spectrogram(y: &[f32]) -> Vec<Vec<f64>> {
+    let pad = N_FFT / 2;
+    let frames = 1 + y.len() / HOP;
+    let window: Vec<f64> = (0..N_FFT)
+        .map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / N_FFT as f64).cos())
+        .collect();
+    let fft = FftPlanner::<f64>::new().plan_fft_forward(N_FFT);
+    let mut buf = vec![Complex::new(0.0, 0.0); N_FFT];
+    (0..frames)
+        .map(|t| {
+            for (i, b) in buf.iter_mut().enumerate() {
+                let k = (t * HOP + i) as i64 - pad as i64;
+                let v = if k >= 0 && (k as usize) < y.len() {
+                    y[k as usize] as f64
+                } else {
+                    0.0
+                };
+                *b = Complex::new(v * window[i], 0.0);
+            }
+            fft.process(&mut buf);
+            buf[..N_FFT / 2 + 1].iter().map(|c| c.norm_sqr()).collect()
+        })
+        .collect()
+}
+
+fn hz_to_mel(f: f64) -> f64 {
+    // Slaney: linear below 1 kHz, logarithmic above.
+    let (f_sp, min_log_hz) = (200.0 / 3.0, 1000.0);
+    let min_log_mel = min_log_hz / f_sp;
+    let logstep = (6.4f64).ln() / 27.0;
+    if f >= min_log_hz {
+        min_log_mel + (f / min_log_hz).ln() / logstep
+    } else {
+        f / f_sp
+    }
+}
+
+fn mel_to_hz(m: f64) -> f64 {
+    let (f_sp, min_log_hz) = (200.0 / 3.0, 1000.0);
+    let min_log_mel = min_log_hz / f_sp;
+    let logstep = (6.4f64).ln() / 27.0;
+    if m >= min_log_mel {
+        min_log_hz * (logstep * (m - min_log_mel)).exp()
+    } else {
+        f_sp * m
+    }
+}
+
+/// `[N_MELS][N_FFT/2 + 1]` Slaney mel filterbank (area-normalised).
+pub fn mel_filterbank(sr: f64) -> Vec<Vec<f64>> {
+    let bins = N_FFT / 2 + 1;
+    let fft_freqs: Vec<f64> = (0..bins).map(|i| i as f64 * sr / N_FFT as f64).collect();
+    let (lo, hi) = (hz_to_mel(0.0), hz_to_mel(sr / 2.0));
+    let mel_f: Vec<f64> = (0..N_MELS + 2)
+        .map(|i| mel_to_hz(lo + (hi - lo) * i as f64 / (N_MELS + 1) as f64))
+        .collect();
+    (0..N_MELS)
+        .map(|m| {
+            let (f0, f1, f2) = (mel_f[m], mel_f[m + 1], mel_f[m + 2]);
+            let enorm = 2.0 / (f2 - f0);
+            fft_freqs
+                .iter()
+                .map(|&f| {
+                    let lower = (f - f0) / (f1 - f0);
+                    let upper = (f2 - f) / (f2 - f1);
+                    lower.min(upper).max(0.0) * enorm
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// `[frames][N_MELS]` mel power in dB, floored 80 dB below the maximum.
+pub fn mel_db(power: &[Vec<f64>], sr: f64) -> Vec<Vec<f64>> {
+    let fb = mel_filterbank(sr);
+    let mut out: Vec<Vec<f64>> = power
+        .iter()
+        .map(|p| {
+            fb.iter()
+                .map(|w| {
+                    let e: f64 = w.iter().zip(p).map(|(a, b)| a * b).sum();
+                    10.0 * e.max(1e-10).log10()
+                })
+                .collect()
+        })
+        .collect();
+    let max = out
+        .iter()
+        .flatten()
+        .fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+    for row in out.iter_mut() {
+        for v in row.iter_mut() {
+            *v = v.max(max - 80.0);
+        }
+    }
+    out
+}
+
+/// `[frames][N_MFCC]`: orthonormal DCT-II over the mel bands.
+pub fn mfcc(mel_db: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    let m = N_MELS as f64;
+    let basis: Vec<Vec<f64>> = (0..N_MFCC)
+        .map(|k| {
+            let s = if k == 0 {
+                (1.0 / m).sqrt()
+            } else {
+                (2.0 / m).sqrt()
+            };
+            (0..N_MELS)
+                .map(|n| {
+                    s * (std::f64::consts::PI * k as f64 * (2 * n + 1) as f64 / (2.0 * m)).cos()
+                })
+                .collect()
+        })
+        .collect();
+    mel_db
+        .iter()
+        .map(|row| {
+            basis
+                .iter()
+                .map(|b| b.iter().zip(row).map(|(x, y)| x * y).sum())
+                .collect()
+        })
+        .collect()
+}
+
+/// Onset strength per frame (librosa's: lag 1, shifted by 1 + N_FFT/(2·HOP)).
+pub fn onset_strength(mel_db: &[Vec<f64>]) -> Vec<f64> {
+    let n = mel_db.len();
+    let shift = 1 + N_FFT / (2 * HOP);
+    let mut out = vec![0.0; n];
+    for (i, o) in out.iter_mut().enumerate().skip(shift) {
+        let src = i - shift; // diff between frames src+1 and src
+        if src + 1 >= n {
+            break;
+        }
+        let (a, b) = (&mel_db[src + 1], &mel_db[src]);
+        *o = a.iter().zip(b).map(|(x, y)| (x - y).max(0.0)).sum::<f64>() / N_MELS as f64;
+    }
+    out
+}
+
+/// librosa's `onset_detect` peak picker at 60 frames/s: the curve is scaled
+/// to [0, 1]; a frame is a peak when it is the maximum of frames
+/// [n−1, n] and at least 0.07 above the mean of [n−6, n+6]; after a peak the
+/// next frame is skipped. An all-zero curve has no peaks.
+pub fn onset_peaks(curve: &[f64]) -> Vec<usize> {
+    if curve.is_empty() {
+        return vec![];
+    }
+    let min = curve.iter().copied().fold(f64::INFINITY, f64::min);
+    let max = curve.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !(max > min) || curve.iter().any(|v| !v.is_finite()) {
+        return vec![];
+    }
+    let x: Vec<f64> = curve
+        .iter()
+        .map(|v| (v - min) / (max - min + f64::MIN_POSITIVE))
+        .collect();
+    let (pre_max, post_max, pre_avg, post_avg, wait, delta) =
+        (1usize, 1usize, 6usize, 7usize, 1usize, 0.07);
+    let n = x.len();
+    let mean = |a: usize, b: usize| x[a..b].iter().sum::<f64>() / (b - a) as f64;
+    let maxr = |a: usize, b: usize| x[a..b].iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let mut peaks = vec![];
+    let first = x[0] >= maxr(0, post_max.min(n)) && x[0] >= mean(0, post_avg.min(n)) + delta;
+    let mut i = if first {
+        peaks.push(0);
+        wait + 1
+    } else {
+        1
+    };
+    while i < n {
+        let is_max = x[i] == maxr(i.saturating_sub(pre_max), (i + post_max).min(n));
+        if is_max && x[i] >= mean(i.saturating_sub(pre_avg), (i + post_avg).min(n)) + delta {
+            peaks.push(i);
+            i += wait + 1;
+        } else {
+            i += 1;
+        }
+    }
+    peaks
+}
+
+/// Median of a small slice (copied).
+fn median(v: &mut [f64]) -> f64 {
+    let m = v.len() / 2;
+    let (_, x, _) = v.select_nth_unstable_by(m, f64::total_cmp);
+    *x
+}
+
+/// The percussive part of a power spectrogram by median-filter HPSS
+/// (kernel 31 frames / 31 bins, soft masks with power 2, as librosa's
+/// `decompose.hpss` on the magnitude).
+pub fn hpss_percussive(power: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    let (t_n, f_n) = (power.len(), power.first().map_or(0, |r| r.len()));
+    let mag: Vec<Vec<f64>> = power
+        .iter()
+        .map(|r| r.iter().map(|p| p.sqrt()).collect())
+        .collect();
+    let k = 15i64; // half of 31
+    let mut harm = vec![vec![0.0; f_n]; t_n];
+    let mut perc = vec![vec![0.0; f_n]; t_n];
+    let mut w = Vec::with_capacity(31);
+    for t in 0..t_n {
+        for f in 0..f_n {
+            // Along time (harmonic), edges reflected like scipy's median_filter.
+            w.clear();
+            for d in -k..=k {
+                let mut i = t as i64 + d;
+                if i < 0 {
+                    i = -i - 1;
+                }
+                if i >= t_n as i64 {
+                    i = 2 * t_n as i64 - i - 1;
+                }
+                w.push(mag[i.clamp(0, t_n as i64 - 1) as usize][f]);
+            }
+            harm[t][f] = median(&mut w);
+            w.clear();
+            for d in -k..=k {
+                let mut i = f as i64 + d;
+                if i < 0 {
+                    i = -i - 1;
+                }
+                if i >= f_n as i64 {
+                    i = 2 * f_n as i64 - i - 1;
+                }
+                w.push(mag[t][i.clamp(0, f_n as i64 - 1) as usize]);
+            }
+            perc[t][f] = median(&mut w);
+        }
+    }
+    (0..t_n)
+        .map(|t| {
+            (0..f_n)
+                .map(|f| {
+                    let (h, p) = (harm[t][f].powi(2), perc[t][f].powi(2));
+                    let mask = if h + p > 0.0 { p / (h + p) } else { 0.5 };
+                    let m = mag[t][f] * mask;
+                    m * m
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Everything keyframe selection needs from a piece of music, at 60 frames/s.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MusicFeatures {
+    pub frames: usize,
+    pub mfcc: Vec<Vec<f64>>,
+    pub onset: Vec<f64>,
+    pub peaks: Vec<usize>,
+    /// Onset strength of the HPSS percussive part, and its peaks.
+    pub percussive_onset: Vec<f64>,
+    pub percussive_peaks: Vec<usize>,
+    pub seconds: f64,
+    pub source_rate: u32,
+    pub channels: usize,
+}
+
+/// Resample to 30,720 Hz and compute the features.
+pub fn analyse(audio: &Audio, name: &str) -> Result<(Vec<f32>, MusicFeatures), MotionError> {
+    if audio.seconds() < N_FFT as f64 / SAMPLE_RATE as f64 / 2.0 {
+        return Err(bad(
+            name,
+            "audio",
+            format!(
+                "{:.3} s is too short for one analysis frame",
+                audio.seconds()
+            ),
+        ));
+    }
+    let y = resample(&audio.samples, audio.sample_rate, SAMPLE_RATE);
+    let power = power_spectrogram(&y);
+    let db = mel_db(&power, SAMPLE_RATE as f64);
+    let onset = onset_strength(&db);
+    let peaks = onset_peaks(&onset);
+    let pdb = mel_db(&hpss_percussive(&power), SAMPLE_RATE as f64);
+    let percussive_onset = onset_strength(&pdb);
+    let percussive_peaks = onset_peaks(&percussive_onset);
+    Ok((
+        y,
+        MusicFeatures {
+            frames: power.len(),
+            mfcc: mfcc(&db),
+            onset,
+            peaks,
+            percussive_onset,
+            percussive_peaks,
+            seconds: audio.seconds(),
+            source_rate: audio.sample_rate,
+            channels: audio.channels,
+        },
+    ))
+}
+
+/// A metronome: a 20 ms, 1.5 kHz click with a fast decay on every beat.
+pub fn metronome(bpm: f64, seconds: f64, sample_rate: u32) -> Result<Audio, MotionError> {
+    if !(bpm.is_finite() && (20.0..=400.0).contains(&bpm)) {
+        return Err(bad("metronome", "bpm", format!("{bpm}; need 20..=400")));
+    }
+    if !(seconds > 0.0 && seconds <= MAX_SECONDS) {
+        return Err(bad(
+            "metronome",
+            "seconds",
+            format!("{seconds}; need (0, {MAX_SECONDS}]"),
+        ));
+    }
+    let n = (seconds * sample_rate as f64).round() as usize;
+    let mut y = vec![0f32; n];
+    let click = (0.02 * sample_rate as f64) as usize;
+    let step = 60.0 / bpm * sample_rate as f64;
+    let mut b = 0usize;
+    loop {
+        let s = (b as f64 * step).round() as usize;
+        if s >= n {
+            break;
+        }
+        for i in 0..click.min(n - s) {
+            let t = i as f64 / sample_rate as f64;
+            y[s + i] =
+                (0.8 * (2.0 * std::f64::consts::PI * 1500.0 * t).sin() * (-t / 0.004).exp()) as f32;
+        }
+        b += 1;
+    }
+    Ok(Audio {
+        sample_rate,
+        samples: y,
+        channels: 1,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn metronome_onsets_fall_on_the_beats() {
+        for bpm in [80.0, 100.0, 120.0, 135.0] {
+            let a = metronome(bpm, 10.0, 44_100).unwrap();
+            let (_, f) = analyse(&a, "metronome").unwrap();
+            // The click at t = 0 is already sounding in the first frame, so
+            // it makes no rise (librosa finds none either): beats from the second.
+            let beats: Vec<f64> = (1..)
+                .map(|k| k as f64 * 60.0 / bpm * 60.0)
+                .take_while(|&b| b < f.frames as f64 - 1.0)
+                .collect();
+            assert_eq!(f.peaks.len(), beats.len(), "{bpm}: {:?}", f.peaks);
+            for (p, b) in f.peaks.iter().zip(&beats) {
+                assert!(
+                    (*p as f64 - b).abs() <= 1.0,
+                    "{bpm} BPM: peak {p} vs beat {b}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn resampling_keeps_a_tone_and_drops_what_is_above_nyquist() {
+        let sr = 44_100;
+        let tone = |f: f64| -> Vec<f32> {
+            (0..sr)
+                .map(|i| (2.0 * std::f64::consts::PI * f * i as f64 / sr as f64).sin() as f32)
+                .collect()
+        };
+        let rms = |x: &[f32]| {
+            (x[2000..x.len() - 2000]
+                .iter()
+                .map(|v| (*v as f64).powi(2))
+                .sum::<f64>()
+                / (x.len() - 4000) as f64)
+                .sqrt()
+        };
+        let kept = resample(&tone(1000.0), sr, SAMPLE_RATE);
+        assert_eq!(kept.len(), SAMPLE_RATE as usize);
+        assert!((rms(&kept) - 0.5f64.sqrt()).abs() < 0.01, "{}", rms(&kept));
+        // 20 kHz is above the new Nyquist (15.36 kHz): it must vanish.
+        let gone = resample(&tone(20_000.0), sr, SAMPLE_RATE);
+        assert!(rms(&gone) < 0.01, "{}", rms(&gone));
+    }
+
+    #[test]
+    fn bad_audio_is_a_clear_error() {
+        assert!(decode(vec![], "x.wav", Some("wav"))
+            .unwrap_err()
+            .to_string()
+            .contains("empty"));
+        assert!(decode(
+            b"RIFF\x00\x00\x00\x00WAVEjunk".to_vec(),
+            "x.wav",
+            Some("wav")
+        )
+        .is_err());
+        assert!(decode(vec![7; 5000], "x.mp3", Some("mp3")).is_err());
+        assert!(metronome(0.0, 1.0, 44_100).is_err() && metronome(10_000.0, 1.0, 44_100).is_err());
+        let short = Audio {
+            sample_rate: 44_100,
+            samples: vec![0.0; 10],
+            channels: 1,
+        };
+        assert!(analyse(&short, "short").is_err());
+        // Silence analyses fine and has no onsets.
+        let silent = Audio {
+            sample_rate: 44_100,
+            samples: vec![0.0; 44_100],
+            channels: 2,
+        };
+        let (_, f) = analyse(&silent, "silent").unwrap();
+        assert!(f.peaks.is_empty() && f.onset.iter().all(|&v| v == 0.0));
+    }
+}
