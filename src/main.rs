@@ -1371,6 +1371,12 @@ fn keyframes_cmd(
             out.map(|o| format!("; wrote {}", o.display()))
                 .unwrap_or_default()
         );
+        if let Some(b) = report.beat_alignment {
+            println!(
+                "beat alignment (σ = 3 frames), music→motion: original {:.3}, rebuilt {:.3}; motion→music: original {:.3}, rebuilt {:.3}",
+                b.original_music_to_motion, b.rebuilt_music_to_motion, b.original_motion_to_music, b.rebuilt_motion_to_music
+            );
+        }
     }
     Ok(())
 }

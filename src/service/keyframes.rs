@@ -3,7 +3,9 @@
 
 use crate::features::smpl24_at_60;
 use crate::keyframes::inbetween::{self, BezierOffsets};
-use crate::keyframes::metrics::{fid, geometric_features, kinetic_features, mse, per_frame_error};
+use crate::keyframes::metrics::{
+    beat_alignment, fid, geometric_features, kinetic_features, motion_beats, mse, per_frame_error,
+};
 use crate::keyframes::{
     beat_frames, dp, even, frames_per_measure, from_peaks, position_curve, SegmentCost,
 };
@@ -87,7 +89,14 @@ fn onset_curve(
         (Music::Audio(f), Select::Percussive) => {
             (fit(&f.percussive_onset), f.percussive_peaks.clone())
         }
-        _ => unreachable!("called for audio-based strategies only"),
+        (Music::Audio(f), Select::Nmfd) => (fit(&f.nmfd), f.nmfd_peaks.clone()),
+        _ => {
+            return Err(MotionError::invalid(
+                "keyframes",
+                "music",
+                format!("{} selection needs an audio file", select.name()),
+            ))
+        }
     };
     if curve.iter().all(|&v| v == 0.0) {
         return Err(MotionError::invalid(
@@ -118,6 +127,28 @@ pub struct KeyframeReport {
     pub fps: f64,
     pub select: Select,
     pub inbetween: String,
+    /// Beat alignment (σ = 3 frames) of the original and the rebuilt clip
+    /// against the music's beats (onset peaks, or the metronome's beats).
+    pub beat_alignment: Option<BeatAlignment>,
+}
+
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct BeatAlignment {
+    /// Mean over music beats of exp(−d²/2σ²) to the nearest kinematic beat.
+    pub original_music_to_motion: f64,
+    pub rebuilt_music_to_motion: f64,
+    /// Mean over kinematic beats of the same, to the nearest music beat.
+    pub original_motion_to_music: f64,
+    pub rebuilt_motion_to_music: f64,
+}
+
+/// The music's beats over `n` frames at 60 fps, if there is music.
+fn music_beats(music: &Music, n: usize) -> Option<Vec<usize>> {
+    match music {
+        Music::None => None,
+        Music::Bpm(b) => beat_frames(*b, 60.0, n).ok(),
+        Music::Audio(f) => Some(f.peaks.iter().copied().filter(|&p| p < n).collect()),
+    }
 }
 
 /// Keyframes of a (SMPL-24, 60 fps) clip by a strategy.
@@ -135,7 +166,7 @@ pub fn select_keyframes(
             let cost = SegmentCost::new(position_curve(&p), 3 * m.joints());
             Ok(dp(&cost, count, None)?.0)
         }
-        Select::Onset | Select::Percussive if matches!(music, Music::Audio(_)) => {
+        Select::Onset | Select::Percussive | Select::Nmfd if matches!(music, Music::Audio(_)) => {
             if (m.fps - 60.0).abs() > 1e-9 {
                 return Err(MotionError::invalid("keyframes", "fps", "music-based selection needs the clip at 60 fps"));
             }
@@ -157,18 +188,10 @@ pub fn select_keyframes(
                 "onset selection needs music: give --music FILE or --bpm (a metronome at that tempo)",
             )),
         },
-        Select::Percussive => Err(MotionError::invalid(
+        Select::Percussive | Select::Nmfd => Err(MotionError::invalid(
             "keyframes",
             "music",
-            "percussive selection needs an audio file (--music)",
-        )),
-        Select::Nmfd => Err(MotionError::invalid(
-            "keyframes",
-            "select",
-            format!(
-                "'{}' (NMFD activations) is not built yet; use even, onset, percussive or dp",
-                select.name()
-            ),
+            format!("{} selection needs an audio file (--music)", select.name()),
         )),
     }
 }
@@ -192,7 +215,21 @@ pub fn reconstruct(
     let keys = select_keyframes(&m, req.select, req.count, &req.music)?;
     let r = rebuild(&m, &keys, &req.inbetween)?;
     let (pa, pb) = (m.positions(), r.positions());
+    let beat_alignment = music_beats(&req.music, m.frames()).and_then(|mb| {
+        let j = m.joints();
+        let (o, b) = (
+            beat_alignment(&mb, &motion_beats(&pa, j), 3.0)?,
+            beat_alignment(&mb, &motion_beats(&pb, j), 3.0)?,
+        );
+        Some(BeatAlignment {
+            original_music_to_motion: o.0,
+            rebuilt_music_to_motion: b.0,
+            original_motion_to_music: o.1,
+            rebuilt_motion_to_music: b.1,
+        })
+    });
     let report = KeyframeReport {
+        beat_alignment,
         mse: mse(&pa, &pb),
         per_frame_error: per_frame_error(&pa, &pb, m.joints()),
         frames: m.frames(),
