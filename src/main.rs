@@ -259,6 +259,11 @@ enum BenchCmd {
         dump: Option<PathBuf>,
         #[arg(long, default_value_t = 128)]
         ef_search: usize,
+        /// Links per node (M).
+        #[arg(long, default_value_t = 24)]
+        m: usize,
+        #[arg(long, default_value_t = 200)]
+        ef_construction: usize,
     },
     /// DP keyframe selection time on a clip looped to --frames frames (60 fps):
     /// per 4/4 measure at --bpm, and over the whole clip (exact).
@@ -584,10 +589,17 @@ fn run(cli: Cli) -> Result<()> {
                     metric,
                     dump,
                     ef_search,
+                    m,
+                    ef_construction,
                 },
         } => {
             let metric = Metric::parse(&metric).with_context(|| format!("--metric: '{metric}'"))?;
-            bench_index(&sizes, dim, queries, metric, dump.as_deref(), ef_search)
+            let params = HnswParams {
+                m,
+                ef_construction,
+                ef_search,
+            };
+            bench_index(&sizes, dim, queries, metric, dump.as_deref(), params)
         }
         Cmd::Bench {
             cmd: BenchCmd::Embed { data, dump },
@@ -884,7 +896,7 @@ fn bench_index(
     nq: usize,
     metric: Metric,
     dump: Option<&std::path::Path>,
-    ef_search: usize,
+    params: HnswParams,
 ) -> Result<()> {
     use choreo::index::hnsw::HnswIndex;
     use choreo::index::{recall, synthetic_latent, AnnIndex, ExactIndex};
@@ -923,10 +935,6 @@ fn bench_index(
             write_npy_f32(&d.join(format!("gt_{n}.npy")), &gt)?;
         }
         let t = Instant::now();
-        let params = HnswParams {
-            ef_search,
-            ..Default::default()
-        };
         let mut h = HnswIndex::new(metric, dim, n, params);
         h.add_batch(&items);
         let build_s = t.elapsed().as_secs_f64();
@@ -948,7 +956,7 @@ fn bench_index(
             json!({
                 "n": n, "dim": dim, "metric": metric, "queries": nq, "generate_s": gen_s,
                 "exact": {"p50_ms": percentile(&lat_e, 0.5), "p95_ms": percentile(&lat_e, 0.95), "qps_1thread": qps(&lat_e)},
-                "hnsw": {"m": params.m, "ef_construction": params.ef_construction, "ef_search": ef_search, "build_s": build_s,
+                "hnsw": {"m": params.m, "ef_construction": params.ef_construction, "ef_search": params.ef_search, "build_s": build_s,
                          "p50_ms": percentile(&lat_h, 0.5), "p95_ms": percentile(&lat_h, 0.95), "qps_1thread": qps(&lat_h),
                          "recall_at_10": rec / nq as f64},
             })
