@@ -25,6 +25,7 @@
 //! assert!(p[15][1] > p[0][1] && p[7][1] < p[0][1]);
 //! ```
 
+pub mod api;
 pub mod audio;
 pub mod data;
 pub mod features;
@@ -32,6 +33,7 @@ pub mod index;
 pub mod keyframes;
 pub mod motion;
 pub mod plot;
+pub mod server;
 pub mod service;
 pub mod store;
 pub mod tokenize;

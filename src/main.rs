@@ -222,6 +222,8 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Serve REST and gRPC (see README: API).
+    Serve(choreo::server::ServeConfig),
     /// Benchmarks whose figures go to bench/RESULTS.md.
     Bench {
         #[command(subcommand)]
@@ -636,6 +638,7 @@ fn run(cli: Cli) -> Result<()> {
                     json,
                 },
         } => eval_keyframes(data, bpm, counts, json),
+        Cmd::Serve(cfg) => runtime()?.block_on(choreo::server::serve(cfg)),
         Cmd::Keyframes {
             motion,
             bpm,

@@ -1,0 +1,254 @@
+//! REST over axum: JSON in, JSON out; every handler converts and calls the
+//! operation of [`super`].
+
+use super::{ApiError, AppState, InterpolateParams, KeyframesParams, MotionInput, QueryParams};
+use crate::motion::{Labels, Motion};
+use axum::extract::rejection::JsonRejection;
+use axum::extract::{DefaultBodyLimit, State};
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use base64::Engine;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use std::sync::Arc;
+
+/// A motion as JSON: `rotations` is `[frames][joints][3]` axis-angle,
+/// `translation` `[frames][3]` metres.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MotionJson {
+    pub fps: f64,
+    #[serde(default)]
+    pub skeleton: String,
+    pub rotations: Vec<Vec<[f64; 3]>>,
+    pub translation: Vec<[f64; 3]>,
+    #[serde(default)]
+    pub labels: Labels,
+    #[serde(default)]
+    pub name: String,
+}
+
+impl MotionJson {
+    pub fn from_motion(m: &Motion) -> MotionJson {
+        let j = m.joints();
+        MotionJson {
+            fps: m.fps,
+            skeleton: m.skeleton.kind.clone(),
+            rotations: m.rotations.chunks(j).map(|c| c.to_vec()).collect(),
+            translation: m.trans.clone(),
+            labels: m.labels.clone(),
+            name: m.name.clone(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct FileJson {
+    #[serde(default)]
+    pub name: String,
+    pub content_base64: String,
+}
+
+/// Exactly one of `motion` (inline) or `file` (an upload, base64).
+#[derive(Clone, Debug, Default, Deserialize)]
+pub struct SourceJson {
+    pub motion: Option<MotionJson>,
+    pub file: Option<FileJson>,
+}
+
+fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
+    let s = s.ok_or_else(|| ApiError::invalid(field, "missing"))?;
+    match (s.motion, s.file) {
+        (Some(m), None) => {
+            let frames = m.rotations.len();
+            let joints = m.rotations.first().map_or(0, |r| r.len());
+            if m.rotations.iter().any(|r| r.len() != joints) {
+                return Err(ApiError::invalid(format!("{field}.motion.rotations"), "frames have different joint counts"));
+            }
+            let _ = frames;
+            let rot: Vec<[f64; 3]> = m.rotations.into_iter().flatten().collect();
+            Ok(MotionInput::Inline(super::motion_from_parts(
+                &format!("{field}.motion"),
+                &m.name,
+                m.fps,
+                &m.skeleton,
+                rot,
+                m.translation,
+                m.labels,
+            )?))
+        }
+        (None, Some(f)) => {
+            let bytes = base64::engine::general_purpose::STANDARD
+                .decode(f.content_base64.as_bytes())
+                .map_err(|e| ApiError::invalid(format!("{field}.file.content_base64"), e.to_string()))?;
+            Ok(MotionInput::File { name: f.name, bytes })
+        }
+        _ => Err(ApiError::invalid(field, "give exactly one of motion or file")),
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let status = StatusCode::from_u16(self.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
+        let body = match &self {
+            ApiError::Invalid { field, reason } => json!({"error": {"code": self.kind(), "field": field, "reason": reason}}),
+            other => json!({"error": {"code": other.kind(), "reason": other.to_string()}}),
+        };
+        (status, Json(body)).into_response()
+    }
+}
+
+fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ApiError> {
+    b.map(|Json(x)| x).map_err(|r| ApiError::invalid("body", r.body_text()))
+}
+
+#[derive(Deserialize)]
+pub struct QueryBody {
+    pub motion: Option<SourceJson>,
+    #[serde(default)]
+    pub start_s: f64,
+    #[serde(default)]
+    pub frames: usize,
+    #[serde(default)]
+    pub k: usize,
+    #[serde(default)]
+    pub embedding: String,
+    #[serde(default)]
+    pub metric: String,
+    #[serde(default)]
+    pub filters: Labels,
+    #[serde(default)]
+    pub exact: bool,
+}
+
+async fn query(State(s): State<Arc<AppState>>, b: Result<Json<QueryBody>, JsonRejection>) -> Result<Json<serde_json::Value>, ApiError> {
+    let b = body(b)?;
+    let hits = super::query(
+        &s,
+        QueryParams {
+            motion: source("motion", b.motion)?,
+            start_s: b.start_s,
+            frames: b.frames,
+            k: b.k,
+            embedding: b.embedding,
+            metric: b.metric,
+            filters: b.filters.into_iter().collect(),
+            exact: b.exact,
+        },
+    )
+    .await?;
+    Ok(Json(json!({ "hits": hits })))
+}
+
+#[derive(Deserialize)]
+pub struct InterpolateBody {
+    pub input: Option<SourceJson>,
+    pub target: Option<SourceJson>,
+    #[serde(default)]
+    pub band: Option<[usize; 2]>,
+    #[serde(default)]
+    pub objective: String,
+    #[serde(default)]
+    pub steps: usize,
+    #[serde(default)]
+    pub learning_rate: f64,
+    #[serde(default)]
+    pub despike: bool,
+}
+
+async fn interpolate(State(s): State<Arc<AppState>>, b: Result<Json<InterpolateBody>, JsonRejection>) -> Result<Json<serde_json::Value>, ApiError> {
+    let b = body(b)?;
+    let (m, r) = super::interpolate(
+        &s,
+        InterpolateParams {
+            input: source("input", b.input)?,
+            target: source("target", b.target)?,
+            band: b.band.map(|[a, c]| (a, c)).unwrap_or((0, 0)),
+            objective: b.objective,
+            steps: b.steps,
+            learning_rate: b.learning_rate,
+            despike: b.despike,
+        },
+    )
+    .await?;
+    let mut v = serde_json::to_value(&r).map_err(|e| ApiError::Internal(e.to_string()))?;
+    v["output"] = serde_json::to_value(MotionJson::from_motion(&m)).map_err(|e| ApiError::Internal(e.to_string()))?;
+    Ok(Json(v))
+}
+
+#[derive(Deserialize)]
+pub struct LowpassBody {
+    pub motion: Option<SourceJson>,
+    pub cutoff: usize,
+}
+
+async fn lowpass(State(s): State<Arc<AppState>>, b: Result<Json<LowpassBody>, JsonRejection>) -> Result<Json<serde_json::Value>, ApiError> {
+    let b = body(b)?;
+    let m = super::lowpass(&s, source("motion", b.motion)?, b.cutoff).await?;
+    Ok(Json(json!({ "output": MotionJson::from_motion(&m) })))
+}
+
+#[derive(Deserialize)]
+pub struct KeyframesBody {
+    pub motion: Option<SourceJson>,
+    pub count: usize,
+    #[serde(default)]
+    pub select: String,
+    #[serde(default)]
+    pub inbetween: String,
+    #[serde(default)]
+    pub bpm: f64,
+    pub music: Option<FileJson>,
+}
+
+async fn keyframes(State(s): State<Arc<AppState>>, b: Result<Json<KeyframesBody>, JsonRejection>) -> Result<Json<serde_json::Value>, ApiError> {
+    let b = body(b)?;
+    let music = match b.music {
+        Some(f) => Some((
+            f.name,
+            base64::engine::general_purpose::STANDARD
+                .decode(f.content_base64.as_bytes())
+                .map_err(|e| ApiError::invalid("music.content_base64", e.to_string()))?,
+        )),
+        None => None,
+    };
+    let (m, r) = super::keyframes(
+        &s,
+        KeyframesParams {
+            motion: source("motion", b.motion)?,
+            count: b.count,
+            select: b.select,
+            inbetween: b.inbetween,
+            bpm: b.bpm,
+            music,
+        },
+    )
+    .await?;
+    let mut v = serde_json::to_value(&r).map_err(|e| ApiError::Internal(e.to_string()))?;
+    v["output"] = serde_json::to_value(MotionJson::from_motion(&m)).map_err(|e| ApiError::Internal(e.to_string()))?;
+    Ok(Json(v))
+}
+
+async fn list_motions(State(s): State<Arc<AppState>>) -> Result<Json<serde_json::Value>, ApiError> {
+    let rows = super::list_motions(&s).await?;
+    let motions: Vec<serde_json::Value> = rows
+        .iter()
+        .map(|r| json!({"id": r.id, "source_path": r.source_path, "format": r.format, "fps": r.fps, "frames": r.frames, "labels": r.labels}))
+        .collect();
+    Ok(Json(json!({ "motions": motions })))
+}
+
+/// The REST routes; `max_body` bytes per request.
+pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
+    Router::new()
+        .route("/healthz", get(|| async { "ok" }))
+        .route("/readyz", get(|| async { "ready" }))
+        .route("/v1/query", post(query))
+        .route("/v1/interpolate", post(interpolate))
+        .route("/v1/lowpass", post(lowpass))
+        .route("/v1/keyframes", post(keyframes))
+        .route("/v1/motions", get(list_motions))
+        .layer(DefaultBodyLimit::max(max_body))
+        .with_state(state)
+}

@@ -1,0 +1,139 @@
+//! `choreo serve`: one tokio process, REST (axum) and gRPC (tonic) on two
+//! ports over one shared state, graceful shutdown on SIGINT / SIGTERM.
+
+use crate::api::{grpc, http, AppState};
+use crate::index::hnsw::HnswParams;
+use crate::service::query::Searcher;
+use crate::store::Store;
+use anyhow::{Context, Result};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use tokio::sync::watch;
+
+/// Every setting is a flag and an environment variable.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ServeConfig {
+    /// Folder holding the SQLite store (choreo.db) and its HNSW indexes.
+    #[arg(long, env = "CHOREO_DATA_DIR", default_value = "choreo-data")]
+    pub data_dir: PathBuf,
+    /// Address both listeners bind to.
+    #[arg(long, env = "CHOREO_BIND", default_value = "127.0.0.1")]
+    pub bind: String,
+    /// REST port (0 = any free port).
+    #[arg(long, env = "CHOREO_HTTP_PORT", default_value_t = 8080)]
+    pub http_port: u16,
+    /// gRPC port (0 = any free port).
+    #[arg(long, env = "CHOREO_GRPC_PORT", default_value_t = 50051)]
+    pub grpc_port: u16,
+    /// Largest request body / gRPC message, MiB.
+    #[arg(long, env = "CHOREO_MAX_BODY_MB", default_value_t = 64)]
+    pub max_body_mb: usize,
+    /// Requests that may run CPU-heavy work at once; more get 429 /
+    /// RESOURCE_EXHAUSTED.
+    #[arg(long, env = "CHOREO_WORKERS", default_value_t = 2)]
+    pub workers: usize,
+    /// Folders or files to ingest at start-up (skipped when already stored).
+    #[arg(long, env = "CHOREO_INGEST", value_delimiter = ',')]
+    pub ingest: Vec<PathBuf>,
+}
+
+/// A running server.
+pub struct Running {
+    pub http: SocketAddr,
+    pub grpc: SocketAddr,
+    stop: watch::Sender<bool>,
+    tasks: Vec<tokio::task::JoinHandle<Result<()>>>,
+}
+
+impl Running {
+    /// Ask both listeners to stop, and wait for in-flight requests.
+    pub async fn shutdown(self) -> Result<()> {
+        let _ = self.stop.send(true);
+        self.wait().await
+    }
+    /// Wait until both servers have stopped.
+    pub async fn wait(self) -> Result<()> {
+        for t in self.tasks {
+            t.await.context("server task")??;
+        }
+        Ok(())
+    }
+    /// A handle that stops the server when sent `true`.
+    pub fn stopper(&self) -> watch::Sender<bool> {
+        self.stop.clone()
+    }
+}
+
+/// Open the store (ingesting `cfg.ingest` first), bind both ports and serve.
+pub async fn start(cfg: &ServeConfig) -> Result<Running> {
+    std::fs::create_dir_all(&cfg.data_dir).with_context(|| format!("--data-dir {}", cfg.data_dir.display()))?;
+    let db = cfg.data_dir.join("choreo.db");
+    let store = Store::open(&db).await?;
+    if !cfg.ingest.is_empty() {
+        let r = crate::service::ingest::ingest(&store, &cfg.ingest, &Default::default(), &|_, _, _| {}).await?;
+        eprintln!(
+            "ingested {} motions ({} windows), {} already stored, {} unreadable",
+            r.motions,
+            r.windows,
+            r.skipped,
+            r.errors.len()
+        );
+    }
+    let searcher = Searcher::open(store.clone(), HnswParams::default()).await?;
+    let state = Arc::new(AppState {
+        store,
+        searcher,
+        workers: Arc::new(tokio::sync::Semaphore::new(cfg.workers.max(1))),
+    });
+    let max = cfg.max_body_mb.max(1) << 20;
+    let http_l = tokio::net::TcpListener::bind((cfg.bind.as_str(), cfg.http_port))
+        .await
+        .with_context(|| format!("--http-port {}", cfg.http_port))?;
+    let grpc_l = tokio::net::TcpListener::bind((cfg.bind.as_str(), cfg.grpc_port))
+        .await
+        .with_context(|| format!("--grpc-port {}", cfg.grpc_port))?;
+    let (http_addr, grpc_addr) = (http_l.local_addr()?, grpc_l.local_addr()?);
+    let (stop, rx) = watch::channel(false);
+    let stopped = |mut rx: watch::Receiver<bool>| async move {
+        let _ = rx.wait_for(|v| *v).await;
+    };
+    let app = http::router(state.clone(), max);
+    let r1 = rx.clone();
+    let t1 = tokio::spawn(async move {
+        axum::serve(http_l, app).with_graceful_shutdown(stopped(r1)).await.context("REST server")
+    });
+    let svc = grpc::service(state, max);
+    let r2 = rx.clone();
+    let t2 = tokio::spawn(async move {
+        tonic::transport::Server::builder()
+            .add_service(svc)
+            .serve_with_incoming_shutdown(tonic::transport::server::TcpIncoming::from(grpc_l), stopped(r2))
+            .await
+            .context("gRPC server")
+    });
+    Ok(Running { http: http_addr, grpc: grpc_addr, stop, tasks: vec![t1, t2] })
+}
+
+/// Serve until SIGINT or SIGTERM.
+pub async fn serve(cfg: ServeConfig) -> Result<()> {
+    let running = start(&cfg).await?;
+    eprintln!("choreo: REST on http://{}, gRPC on {}", running.http, running.grpc);
+    let stop = running.stopper();
+    tokio::spawn(async move {
+        let ctrl_c = tokio::signal::ctrl_c();
+        #[cfg(unix)]
+        {
+            let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).expect("SIGTERM handler");
+            tokio::select! {
+                _ = ctrl_c => {},
+                _ = term.recv() => {},
+            }
+        }
+        #[cfg(not(unix))]
+        let _ = ctrl_c.await;
+        eprintln!("choreo: shutting down");
+        let _ = stop.send(true);
+    });
+    running.wait().await
+}
