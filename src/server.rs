@@ -67,11 +67,14 @@ impl Running {
 
 /// Open the store (ingesting `cfg.ingest` first), bind both ports and serve.
 pub async fn start(cfg: &ServeConfig) -> Result<Running> {
-    std::fs::create_dir_all(&cfg.data_dir).with_context(|| format!("--data-dir {}", cfg.data_dir.display()))?;
+    std::fs::create_dir_all(&cfg.data_dir)
+        .with_context(|| format!("--data-dir {}", cfg.data_dir.display()))?;
     let db = cfg.data_dir.join("choreo.db");
     let store = Store::open(&db).await?;
     if !cfg.ingest.is_empty() {
-        let r = crate::service::ingest::ingest(&store, &cfg.ingest, &Default::default(), &|_, _, _| {}).await?;
+        let r =
+            crate::service::ingest::ingest(&store, &cfg.ingest, &Default::default(), &|_, _, _| {})
+                .await?;
         eprintln!(
             "ingested {} motions ({} windows), {} already stored, {} unreadable",
             r.motions,
@@ -101,30 +104,46 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     let app = http::router(state.clone(), max);
     let r1 = rx.clone();
     let t1 = tokio::spawn(async move {
-        axum::serve(http_l, app).with_graceful_shutdown(stopped(r1)).await.context("REST server")
+        axum::serve(http_l, app)
+            .with_graceful_shutdown(stopped(r1))
+            .await
+            .context("REST server")
     });
     let svc = grpc::service(state, max);
     let r2 = rx.clone();
     let t2 = tokio::spawn(async move {
         tonic::transport::Server::builder()
             .add_service(svc)
-            .serve_with_incoming_shutdown(tonic::transport::server::TcpIncoming::from(grpc_l), stopped(r2))
+            .serve_with_incoming_shutdown(
+                tonic::transport::server::TcpIncoming::from(grpc_l),
+                stopped(r2),
+            )
             .await
             .context("gRPC server")
     });
-    Ok(Running { http: http_addr, grpc: grpc_addr, stop, tasks: vec![t1, t2] })
+    Ok(Running {
+        http: http_addr,
+        grpc: grpc_addr,
+        stop,
+        tasks: vec![t1, t2],
+    })
 }
 
 /// Serve until SIGINT or SIGTERM.
 pub async fn serve(cfg: ServeConfig) -> Result<()> {
     let running = start(&cfg).await?;
-    eprintln!("choreo: REST on http://{}, gRPC on {}", running.http, running.grpc);
+    eprintln!(
+        "choreo: REST on http://{}, gRPC on {}",
+        running.http, running.grpc
+    );
     let stop = running.stopper();
     tokio::spawn(async move {
         let ctrl_c = tokio::signal::ctrl_c();
         #[cfg(unix)]
         {
-            let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).expect("SIGTERM handler");
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+                    .expect("SIGTERM handler");
             tokio::select! {
                 _ = ctrl_c => {},
                 _ = term.recv() => {},

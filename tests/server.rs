@@ -28,7 +28,10 @@ fn http(addr: SocketAddr, method: &str, path: &str, body: Option<&Value>) -> (u1
     let status: u16 = text[9..12].parse().unwrap();
     let (head, rest) = text.split_once("\r\n\r\n").unwrap();
     // Chunked bodies: join the chunks.
-    let body = if head.to_ascii_lowercase().contains("transfer-encoding: chunked") {
+    let body = if head
+        .to_ascii_lowercase()
+        .contains("transfer-encoding: chunked")
+    {
         let mut out = String::new();
         let mut r = rest;
         loop {
@@ -44,7 +47,10 @@ fn http(addr: SocketAddr, method: &str, path: &str, body: Option<&Value>) -> (u1
     } else {
         rest.to_string()
     };
-    (status, serde_json::from_str(&body).unwrap_or(Value::String(body)))
+    (
+        status,
+        serde_json::from_str(&body).unwrap_or(Value::String(body)),
+    )
 }
 
 fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
@@ -61,14 +67,19 @@ fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
-    let Some(aist) = require("aistpp/motions") else { return };
+    let Some(aist) = require("aistpp/motions") else {
+        return;
+    };
     let dir = tempfile::tempdir().unwrap();
-    let running = start(&config(dir.path(), vec![aist.clone()])).await.unwrap();
+    let running = start(&config(dir.path(), vec![aist.clone()]))
+        .await
+        .unwrap();
     let (h, g) = (running.http, running.grpc);
     let file = aist.join("gJS_sFM_cAll_d02_mJS4_ch09.pkl");
     let bytes = std::fs::read(&file).unwrap();
     let b64 = base64::engine::general_purpose::STANDARD.encode(&bytes);
 
+    eprintln!("started: REST {h}, gRPC {g}");
     // Health and the motion list.
     let hh = tokio::task::spawn_blocking(move || {
         let (s, _) = http(h, "GET", "/healthz", None);
@@ -80,16 +91,26 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
     assert_eq!((hh.0, hh.1), (200, 200));
     assert_eq!(hh.2["motions"].as_array().unwrap().len(), 4);
 
+    eprintln!("health ok");
     // Query over REST and gRPC with the same request.
     let body = json!({"motion": {"file": {"name": "gJS_sFM_cAll_d02_mJS4_ch09.pkl", "content_base64": b64}},
                       "start_s": 3.0, "k": 5, "embedding": "dct", "filters": {"genre": "JS"}});
-    let (status, rest) = tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&body))).await.unwrap();
+    let (status, rest) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&body)))
+            .await
+            .unwrap();
     assert_eq!(status, 200, "{rest}");
     let rest_hits = rest["hits"].as_array().unwrap().clone();
+    eprintln!("REST query ok");
     assert!(!rest_hits.is_empty());
-    let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}")).await.unwrap();
+    let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
+        .await
+        .unwrap();
     let source = |name: &str, content: Vec<u8>| pb::MotionSource {
-        source: Some(pb::motion_source::Source::File(pb::UploadedFile { name: name.into(), content })),
+        source: Some(pb::motion_source::Source::File(pb::UploadedFile {
+            name: name.into(),
+            content,
+        })),
     };
     let resp = client
         .query(pb::QueryRequest {
@@ -97,7 +118,9 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
             start_s: 3.0,
             k: 5,
             embedding: "dct".into(),
-            filters: [("genre".to_string(), "JS".to_string())].into_iter().collect(),
+            filters: [("genre".to_string(), "JS".to_string())]
+                .into_iter()
+                .collect(),
             ..Default::default()
         })
         .await
@@ -111,30 +134,55 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
         assert_eq!(a.labels.get("genre").map(String::as_str), Some("JS"));
     }
 
+    eprintln!("gRPC query ok");
     // Keyframes over both: the same keyframes and error.
     let body = json!({"motion": {"file": {"name": "a.pkl", "content_base64": base64::engine::general_purpose::STANDARD.encode(&bytes)}},
                       "count": 12, "select": "dp"});
-    let (status, rest) = tokio::task::spawn_blocking(move || http(h, "POST", "/v1/keyframes", Some(&body))).await.unwrap();
+    let (status, rest) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/keyframes", Some(&body)))
+            .await
+            .unwrap();
     assert_eq!(status, 200, "{rest}");
+    eprintln!("REST keyframes ok");
     let k = client
-        .keyframes(pb::KeyframesRequest { motion: Some(source("a.pkl", bytes.clone())), count: 12, select: "dp".into(), ..Default::default() })
+        .keyframes(pb::KeyframesRequest {
+            motion: Some(source("a.pkl", bytes.clone())),
+            count: 12,
+            select: "dp".into(),
+            ..Default::default()
+        })
         .await
         .unwrap()
         .into_inner();
-    let rest_keys: Vec<u32> = rest["keyframes"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as u32).collect();
+    let rest_keys: Vec<u32> = rest["keyframes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap() as u32)
+        .collect();
     assert_eq!(k.keyframes, rest_keys);
+    eprintln!("gRPC keyframes ok");
     assert!((k.mse - rest["mse"].as_f64().unwrap()).abs() < 1e-12);
 
     // Errors name the field, with the right code on each transport.
     let bad = json!({"motion": {"motion": {"fps": 60, "skeleton": "smpl24", "rotations": [[[0.0, 0.0, 0.0]]], "translation": [[0, 0, 0]]}}, "k": 3});
-    let (status, err) = tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&bad))).await.unwrap();
+    let (status, err) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&bad)))
+            .await
+            .unwrap();
     assert_eq!(status, 400, "{err}");
     assert_eq!(err["error"]["field"], "motion.motion.rotations", "{err}");
-    let (status, err) = tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&json!({"k": 3})))).await.unwrap();
-    assert_eq!((status, err["error"]["field"].as_str()), (400, Some("motion")));
+    let (status, err) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&json!({"k": 3}))))
+            .await
+            .unwrap();
+    assert_eq!(
+        (status, err["error"]["field"].as_str()),
+        (400, Some("motion"))
+    );
     let (status, err) = tokio::task::spawn_blocking(move || {
         let mut s = std::net::TcpStream::connect(h).unwrap();
-        write!(s, "POST /v1/query HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: 5\r\n\r\n{{bad").unwrap();
+        write!(s, "POST /v1/query HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: 4\r\n\r\n{{bad").unwrap();
         let mut out = String::new();
         s.read_to_string(&mut out).unwrap();
         (out[9..12].parse::<u16>().unwrap(), out)
@@ -143,13 +191,20 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
     .unwrap();
     assert_eq!(status, 400, "{err}");
     let e = client
-        .keyframes(pb::KeyframesRequest { motion: Some(source("a.pkl", bytes.clone())), count: 1, ..Default::default() })
+        .keyframes(pb::KeyframesRequest {
+            motion: Some(source("a.pkl", bytes.clone())),
+            count: 1,
+            ..Default::default()
+        })
         .await
         .unwrap_err();
     assert_eq!(e.code(), tonic::Code::InvalidArgument);
     assert!(e.message().contains("count"), "{}", e.message());
     let e = client
-        .query(pb::QueryRequest { motion: Some(source("junk.bvh", b"HIERARCHY nope".to_vec())), ..Default::default() })
+        .query(pb::QueryRequest {
+            motion: Some(source("junk.bvh", b"HIERARCHY nope".to_vec())),
+            ..Default::default()
+        })
         .await
         .unwrap_err();
     assert_eq!(e.code(), tonic::Code::InvalidArgument, "{}", e.message());
@@ -178,10 +233,14 @@ async fn a_full_worker_pool_says_busy() {
         json!({"motion": {"fps": 60.0, "skeleton": "smpl24", "rotations": rot, "translation": vec![[0.0, 0.9, 0.0]; frames]}})
     };
     let long = json!({"input": sine(1.0), "target": sine(3.0), "objective": "stft", "steps": 3000});
-    let first = tokio::task::spawn_blocking(move || http(h, "POST", "/v1/interpolate", Some(&long)));
+    let first =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/interpolate", Some(&long)));
     tokio::time::sleep(std::time::Duration::from_millis(500)).await;
     let quick = json!({"motion": sine(2.0), "cutoff": 8});
-    let (status, err) = tokio::task::spawn_blocking(move || http(h, "POST", "/v1/lowpass", Some(&quick))).await.unwrap();
+    let (status, err) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/lowpass", Some(&quick)))
+            .await
+            .unwrap();
     assert_eq!(status, 429, "{err}");
     assert_eq!(err["error"]["code"], "resource_exhausted");
     let (status, done) = first.await.unwrap();

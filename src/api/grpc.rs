@@ -21,23 +21,31 @@ impl From<ApiError> for Status {
 
 fn triples(field: &str, v: &[f64]) -> Result<Vec<[f64; 3]>, ApiError> {
     if v.len() % 3 != 0 {
-        return Err(ApiError::invalid(field, format!("{} values is not a multiple of 3", v.len())));
+        return Err(ApiError::invalid(
+            field,
+            format!("{} values is not a multiple of 3", v.len()),
+        ));
     }
     Ok(v.chunks(3).map(|c| [c[0], c[1], c[2]]).collect())
 }
 
 fn source(field: &str, s: Option<pb::MotionSource>) -> Result<MotionInput, ApiError> {
     match s.and_then(|s| s.source) {
-        Some(pb::motion_source::Source::Motion(m)) => Ok(MotionInput::Inline(super::motion_from_parts(
-            &format!("{field}.motion"),
-            &m.name,
-            m.fps,
-            &m.skeleton,
-            triples(&format!("{field}.motion.rotations"), &m.rotations)?,
-            triples(&format!("{field}.motion.translation"), &m.translation)?,
-            m.labels.into_iter().collect(),
-        )?)),
-        Some(pb::motion_source::Source::File(f)) => Ok(MotionInput::File { name: f.name, bytes: f.content }),
+        Some(pb::motion_source::Source::Motion(m)) => {
+            Ok(MotionInput::Inline(super::motion_from_parts(
+                &format!("{field}.motion"),
+                &m.name,
+                m.fps,
+                &m.skeleton,
+                triples(&format!("{field}.motion.rotations"), &m.rotations)?,
+                triples(&format!("{field}.motion.translation"), &m.translation)?,
+                m.labels.into_iter().collect(),
+            )?))
+        }
+        Some(pb::motion_source::Source::File(f)) => Ok(MotionInput::File {
+            name: f.name,
+            bytes: f.content,
+        }),
         None => Err(ApiError::invalid(field, "missing")),
     }
 }
@@ -59,7 +67,10 @@ pub struct ChoreoGrpc {
 
 #[tonic::async_trait]
 impl Choreo for ChoreoGrpc {
-    async fn query(&self, req: Request<pb::QueryRequest>) -> Result<Response<pb::QueryResponse>, Status> {
+    async fn query(
+        &self,
+        req: Request<pb::QueryRequest>,
+    ) -> Result<Response<pb::QueryResponse>, Status> {
         let r = req.into_inner();
         let hits = super::query(
             &self.state,
@@ -90,7 +101,10 @@ impl Choreo for ChoreoGrpc {
         }))
     }
 
-    async fn interpolate(&self, req: Request<pb::InterpolateRequest>) -> Result<Response<pb::InterpolateResponse>, Status> {
+    async fn interpolate(
+        &self,
+        req: Request<pb::InterpolateRequest>,
+    ) -> Result<Response<pb::InterpolateResponse>, Status> {
         let r = req.into_inner();
         let (m, rep) = super::interpolate(
             &self.state,
@@ -120,13 +134,21 @@ impl Choreo for ChoreoGrpc {
         }))
     }
 
-    async fn lowpass(&self, req: Request<pb::LowpassRequest>) -> Result<Response<pb::LowpassResponse>, Status> {
+    async fn lowpass(
+        &self,
+        req: Request<pb::LowpassRequest>,
+    ) -> Result<Response<pb::LowpassResponse>, Status> {
         let r = req.into_inner();
         let m = super::lowpass(&self.state, source("motion", r.motion)?, r.cutoff as usize).await?;
-        Ok(Response::new(pb::LowpassResponse { output: Some(motion_pb(&m)) }))
+        Ok(Response::new(pb::LowpassResponse {
+            output: Some(motion_pb(&m)),
+        }))
     }
 
-    async fn keyframes(&self, req: Request<pb::KeyframesRequest>) -> Result<Response<pb::KeyframesResponse>, Status> {
+    async fn keyframes(
+        &self,
+        req: Request<pb::KeyframesRequest>,
+    ) -> Result<Response<pb::KeyframesResponse>, Status> {
         let r = req.into_inner();
         let (m, rep) = super::keyframes(
             &self.state,
@@ -148,7 +170,10 @@ impl Choreo for ChoreoGrpc {
         }))
     }
 
-    async fn list_motions(&self, _req: Request<pb::ListMotionsRequest>) -> Result<Response<pb::ListMotionsResponse>, Status> {
+    async fn list_motions(
+        &self,
+        _req: Request<pb::ListMotionsRequest>,
+    ) -> Result<Response<pb::ListMotionsResponse>, Status> {
         let rows = super::list_motions(&self.state).await?;
         Ok(Response::new(pb::ListMotionsResponse {
             motions: rows

@@ -64,7 +64,10 @@ fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
             let frames = m.rotations.len();
             let joints = m.rotations.first().map_or(0, |r| r.len());
             if m.rotations.iter().any(|r| r.len() != joints) {
-                return Err(ApiError::invalid(format!("{field}.motion.rotations"), "frames have different joint counts"));
+                return Err(ApiError::invalid(
+                    format!("{field}.motion.rotations"),
+                    "frames have different joint counts",
+                ));
             }
             let _ = frames;
             let rot: Vec<[f64; 3]> = m.rotations.into_iter().flatten().collect();
@@ -81,18 +84,29 @@ fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
         (None, Some(f)) => {
             let bytes = base64::engine::general_purpose::STANDARD
                 .decode(f.content_base64.as_bytes())
-                .map_err(|e| ApiError::invalid(format!("{field}.file.content_base64"), e.to_string()))?;
-            Ok(MotionInput::File { name: f.name, bytes })
+                .map_err(|e| {
+                    ApiError::invalid(format!("{field}.file.content_base64"), e.to_string())
+                })?;
+            Ok(MotionInput::File {
+                name: f.name,
+                bytes,
+            })
         }
-        _ => Err(ApiError::invalid(field, "give exactly one of motion or file")),
+        _ => Err(ApiError::invalid(
+            field,
+            "give exactly one of motion or file",
+        )),
     }
 }
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        let status = StatusCode::from_u16(self.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
+        let status =
+            StatusCode::from_u16(self.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
         let body = match &self {
-            ApiError::Invalid { field, reason } => json!({"error": {"code": self.kind(), "field": field, "reason": reason}}),
+            ApiError::Invalid { field, reason } => {
+                json!({"error": {"code": self.kind(), "field": field, "reason": reason}})
+            }
             other => json!({"error": {"code": other.kind(), "reason": other.to_string()}}),
         };
         (status, Json(body)).into_response()
@@ -100,7 +114,8 @@ impl IntoResponse for ApiError {
 }
 
 fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ApiError> {
-    b.map(|Json(x)| x).map_err(|r| ApiError::invalid("body", r.body_text()))
+    b.map(|Json(x)| x)
+        .map_err(|r| ApiError::invalid("body", r.body_text()))
 }
 
 #[derive(Deserialize)]
@@ -122,7 +137,10 @@ pub struct QueryBody {
     pub exact: bool,
 }
 
-async fn query(State(s): State<Arc<AppState>>, b: Result<Json<QueryBody>, JsonRejection>) -> Result<Json<serde_json::Value>, ApiError> {
+async fn query(
+    State(s): State<Arc<AppState>>,
+    b: Result<Json<QueryBody>, JsonRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
     let hits = super::query(
         &s,
@@ -157,7 +175,10 @@ pub struct InterpolateBody {
     pub despike: bool,
 }
 
-async fn interpolate(State(s): State<Arc<AppState>>, b: Result<Json<InterpolateBody>, JsonRejection>) -> Result<Json<serde_json::Value>, ApiError> {
+async fn interpolate(
+    State(s): State<Arc<AppState>>,
+    b: Result<Json<InterpolateBody>, JsonRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
     let (m, r) = super::interpolate(
         &s,
@@ -173,7 +194,8 @@ async fn interpolate(State(s): State<Arc<AppState>>, b: Result<Json<InterpolateB
     )
     .await?;
     let mut v = serde_json::to_value(&r).map_err(|e| ApiError::Internal(e.to_string()))?;
-    v["output"] = serde_json::to_value(MotionJson::from_motion(&m)).map_err(|e| ApiError::Internal(e.to_string()))?;
+    v["output"] = serde_json::to_value(MotionJson::from_motion(&m))
+        .map_err(|e| ApiError::Internal(e.to_string()))?;
     Ok(Json(v))
 }
 
@@ -183,7 +205,10 @@ pub struct LowpassBody {
     pub cutoff: usize,
 }
 
-async fn lowpass(State(s): State<Arc<AppState>>, b: Result<Json<LowpassBody>, JsonRejection>) -> Result<Json<serde_json::Value>, ApiError> {
+async fn lowpass(
+    State(s): State<Arc<AppState>>,
+    b: Result<Json<LowpassBody>, JsonRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
     let m = super::lowpass(&s, source("motion", b.motion)?, b.cutoff).await?;
     Ok(Json(json!({ "output": MotionJson::from_motion(&m) })))
@@ -202,7 +227,10 @@ pub struct KeyframesBody {
     pub music: Option<FileJson>,
 }
 
-async fn keyframes(State(s): State<Arc<AppState>>, b: Result<Json<KeyframesBody>, JsonRejection>) -> Result<Json<serde_json::Value>, ApiError> {
+async fn keyframes(
+    State(s): State<Arc<AppState>>,
+    b: Result<Json<KeyframesBody>, JsonRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
     let music = match b.music {
         Some(f) => Some((
@@ -226,7 +254,8 @@ async fn keyframes(State(s): State<Arc<AppState>>, b: Result<Json<KeyframesBody>
     )
     .await?;
     let mut v = serde_json::to_value(&r).map_err(|e| ApiError::Internal(e.to_string()))?;
-    v["output"] = serde_json::to_value(MotionJson::from_motion(&m)).map_err(|e| ApiError::Internal(e.to_string()))?;
+    v["output"] = serde_json::to_value(MotionJson::from_motion(&m))
+        .map_err(|e| ApiError::Internal(e.to_string()))?;
     Ok(Json(v))
 }
 

@@ -14,7 +14,9 @@ use crate::index::Metric;
 use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::{Labels, Motion, MotionError, Skeleton};
 use crate::service::interpolate::{interpolate_motions, with_channels, InterpolateReport};
-use crate::service::keyframes::{reconstruct, Inbetween, KeyframeReport, KeyframeRequest, Music, Select};
+use crate::service::keyframes::{
+    reconstruct, Inbetween, KeyframeReport, KeyframeRequest, Music, Select,
+};
 use crate::service::query::{QueryError, QueryHit, QueryRequest, Searcher};
 use crate::store::{MotionRow, Store};
 use std::sync::Arc;
@@ -40,7 +42,10 @@ pub enum ApiError {
 
 impl ApiError {
     pub fn invalid(field: impl Into<String>, reason: impl Into<String>) -> ApiError {
-        ApiError::Invalid { field: field.into(), reason: reason.into() }
+        ApiError::Invalid {
+            field: field.into(),
+            reason: reason.into(),
+        }
     }
     /// The HTTP translation.
     pub fn http_status(&self) -> u16 {
@@ -73,8 +78,18 @@ impl ApiError {
 impl From<MotionError> for ApiError {
     fn from(e: MotionError) -> Self {
         match e {
-            MotionError::Invalid { file, field, reason } => ApiError::Invalid { field, reason: format!("{file}: {reason}") },
-            MotionError::Unsupported { file, reason } => ApiError::Invalid { field: "motion".into(), reason: format!("{file}: {reason}") },
+            MotionError::Invalid {
+                file,
+                field,
+                reason,
+            } => ApiError::Invalid {
+                field,
+                reason: format!("{file}: {reason}"),
+            },
+            MotionError::Unsupported { file, reason } => ApiError::Invalid {
+                field: "motion".into(),
+                reason: format!("{file}: {reason}"),
+            },
             e @ MotionError::Io { .. } => ApiError::Internal(e.to_string()),
         }
     }
@@ -126,17 +141,23 @@ pub fn motion_from_parts(
     if rotations.len() != frames * sk.len() {
         return Err(ApiError::invalid(
             format!("{field}.rotations"),
-            format!("{} rotations for {frames} frames × {} joints", rotations.len(), sk.len()),
+            format!(
+                "{} rotations for {frames} frames × {} joints",
+                rotations.len(),
+                sk.len()
+            ),
         ));
     }
     let name = if name.is_empty() { "request" } else { name };
-    Motion::new(name, fps, sk, translation, rotations, labels)
-        .map_err(|e| prefix(field, e.into()))
+    Motion::new(name, fps, sk, translation, rotations, labels).map_err(|e| prefix(field, e.into()))
 }
 
 fn prefix(field: &str, e: ApiError) -> ApiError {
     match e {
-        ApiError::Invalid { field: f, reason } => ApiError::Invalid { field: format!("{field}.{f}"), reason },
+        ApiError::Invalid { field: f, reason } => ApiError::Invalid {
+            field: format!("{field}.{f}"),
+            reason,
+        },
         other => other,
     }
 }
@@ -146,12 +167,21 @@ pub fn resolve(field: &str, input: MotionInput) -> Result<Motion, ApiError> {
     let m = match input {
         MotionInput::Inline(m) => m,
         MotionInput::File { name, bytes } => {
-            let name = if name.is_empty() { "upload".to_string() } else { name };
-            read_bytes(&name, &bytes, &ReadOptions::default()).map_err(|e| prefix(field, e.into()))?.motion
+            let name = if name.is_empty() {
+                "upload".to_string()
+            } else {
+                name
+            };
+            read_bytes(&name, &bytes, &ReadOptions::default())
+                .map_err(|e| prefix(field, e.into()))?
+                .motion
         }
     };
     if m.frames() > MAX_FRAMES * 4 {
-        return Err(ApiError::invalid(format!("{field}.frames"), format!("{} frames is over the limit", m.frames())));
+        return Err(ApiError::invalid(
+            format!("{field}.frames"),
+            format!("{} frames is over the limit", m.frames()),
+        ));
     }
     Ok(m)
 }
@@ -202,11 +232,15 @@ pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, Ap
     let motion = resolve("motion", p.motion)?;
     let embedding = match p.embedding.as_str() {
         "" => Embedding::Stft,
-        e => Embedding::parse(e).ok_or_else(|| ApiError::invalid("embedding", format!("'{e}' is not stft, dct or pca")))?,
+        e => Embedding::parse(e).ok_or_else(|| {
+            ApiError::invalid("embedding", format!("'{e}' is not stft, dct or pca"))
+        })?,
     };
     let metric = match p.metric.as_str() {
         "" => Metric::Cosine,
-        m => Metric::parse(m).ok_or_else(|| ApiError::invalid("metric", format!("'{m}' is not cosine or euclidean")))?,
+        m => Metric::parse(m).ok_or_else(|| {
+            ApiError::invalid("metric", format!("'{m}' is not cosine or euclidean"))
+        })?,
     };
     if p.k > 1000 {
         return Err(ApiError::invalid("k", format!("{}; at most 1000", p.k)));
@@ -234,35 +268,62 @@ pub struct InterpolateParams {
     pub despike: bool,
 }
 
-pub async fn interpolate(state: &AppState, p: InterpolateParams) -> Result<(Motion, InterpolateReport), ApiError> {
+pub async fn interpolate(
+    state: &AppState,
+    p: InterpolateParams,
+) -> Result<(Motion, InterpolateReport), ApiError> {
     let a = resolve("input", p.input)?;
     let b = resolve("target", p.target)?;
     let objective = match p.objective.as_str() {
         "" => Embedding::Dct,
-        o => Embedding::parse(o).ok_or_else(|| ApiError::invalid("objective", format!("'{o}' is not dct, stft or pca")))?,
+        o => Embedding::parse(o).ok_or_else(|| {
+            ApiError::invalid("objective", format!("'{o}' is not dct, stft or pca"))
+        })?,
     };
     let defaults = InterpolateOptions::default();
     let opts = InterpolateOptions {
         objective,
-        band: if p.band == (0, 0) { defaults.band } else { p.band },
-        steps: if p.steps == 0 { defaults.steps } else { p.steps },
-        learning_rate: if p.learning_rate == 0.0 { defaults.learning_rate } else { p.learning_rate },
+        band: if p.band == (0, 0) {
+            defaults.band
+        } else {
+            p.band
+        },
+        steps: if p.steps == 0 {
+            defaults.steps
+        } else {
+            p.steps
+        },
+        learning_rate: if p.learning_rate == 0.0 {
+            defaults.learning_rate
+        } else {
+            p.learning_rate
+        },
     };
     if opts.steps > 5000 {
-        return Err(ApiError::invalid("steps", format!("{}; at most 5000 per request", opts.steps)));
+        return Err(ApiError::invalid(
+            "steps",
+            format!("{}; at most 5000 per request", opts.steps),
+        ));
     }
     let despike = p.despike;
     state
-        .heavy("interpolate", move || Ok(interpolate_motions(&a, &b, &opts, despike)?))
+        .heavy("interpolate", move || {
+            Ok(interpolate_motions(&a, &b, &opts, despike)?)
+        })
         .await
 }
 
-pub async fn lowpass(state: &AppState, motion: MotionInput, cutoff: usize) -> Result<Motion, ApiError> {
+pub async fn lowpass(
+    state: &AppState,
+    motion: MotionInput,
+    cutoff: usize,
+) -> Result<Motion, ApiError> {
     let m = resolve("motion", motion)?;
     state
         .heavy("lowpass", move || {
             let m = smpl24_at_60(&m)?;
-            let out = lowpass_channels(&to_f64(&rows72(&m)), cutoff).map_err(|e| prefix("cutoff", e.into()))?;
+            let out = lowpass_channels(&to_f64(&rows72(&m)), cutoff)
+                .map_err(|e| prefix("cutoff", e.into()))?;
             Ok(with_channels(&m, &out))
         })
         .await
@@ -277,36 +338,63 @@ pub struct KeyframesParams {
     pub music: Option<(String, Vec<u8>)>,
 }
 
-pub async fn keyframes(state: &AppState, p: KeyframesParams) -> Result<(Motion, KeyframeReport), ApiError> {
+pub async fn keyframes(
+    state: &AppState,
+    p: KeyframesParams,
+) -> Result<(Motion, KeyframeReport), ApiError> {
     let m = resolve("motion", p.motion)?;
     let select = match p.select.as_str() {
         "" => Select::Dp,
-        s => Select::parse(s).ok_or_else(|| ApiError::invalid("select", format!("'{s}' is not even, onset, percussive, nmfd or dp")))?,
+        s => Select::parse(s).ok_or_else(|| {
+            ApiError::invalid(
+                "select",
+                format!("'{s}' is not even, onset, percussive, nmfd or dp"),
+            )
+        })?,
     };
     let inbetween = match p.inbetween.as_str() {
         "" | "slerp" => Inbetween::Slerp,
         "bezier" => Inbetween::Bezier,
-        o => return Err(ApiError::invalid("inbetween", format!("'{o}' is not slerp or bezier"))),
+        o => {
+            return Err(ApiError::invalid(
+                "inbetween",
+                format!("'{o}' is not slerp or bezier"),
+            ))
+        }
     };
     let (count, bpm, music) = (p.count, p.bpm, p.music);
     state
         .heavy("keyframes", move || {
             let music = match (music, bpm) {
                 (Some((name, bytes)), _) => {
-                    let ext = std::path::Path::new(&name).extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
-                    let a = crate::audio::decode(bytes, &name, ext.as_deref()).map_err(|e| prefix("music", e.into()))?;
-                    let (_, f) = crate::audio::analyse(&a, &name).map_err(|e| prefix("music", e.into()))?;
+                    let ext = std::path::Path::new(&name)
+                        .extension()
+                        .and_then(|e| e.to_str())
+                        .map(|e| e.to_ascii_lowercase());
+                    let a = crate::audio::decode(bytes, &name, ext.as_deref())
+                        .map_err(|e| prefix("music", e.into()))?;
+                    let (_, f) =
+                        crate::audio::analyse(&a, &name).map_err(|e| prefix("music", e.into()))?;
                     Music::Audio(Box::new(f))
                 }
                 (None, b) if b != 0.0 => Music::Bpm(b),
                 _ => Music::None,
             };
-            let req = KeyframeRequest { select, inbetween, count, music };
+            let req = KeyframeRequest {
+                select,
+                inbetween,
+                count,
+                music,
+            };
             Ok(reconstruct(&m, &req)?)
         })
         .await
 }
 
 pub async fn list_motions(state: &AppState) -> Result<Vec<MotionRow>, ApiError> {
-    state.store.motions().await.map_err(|e| ApiError::Internal(e.to_string()))
+    state
+        .store
+        .motions()
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))
 }
