@@ -61,7 +61,6 @@ fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
     let s = s.ok_or_else(|| ApiError::invalid(field, "missing"))?;
     match (s.motion, s.file) {
         (Some(m), None) => {
-            let frames = m.rotations.len();
             let joints = m.rotations.first().map_or(0, |r| r.len());
             if m.rotations.iter().any(|r| r.len() != joints) {
                 return Err(ApiError::invalid(
@@ -69,7 +68,6 @@ fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
                     "frames have different joint counts",
                 ));
             }
-            let _ = frames;
             let rot: Vec<[f64; 3]> = m.rotations.into_iter().flatten().collect();
             Ok(MotionInput::Inline(super::motion_from_parts(
                 &format!("{field}.motion"),

@@ -22,8 +22,9 @@ use crate::store::{MotionRow, Store};
 use std::sync::Arc;
 use tokio::sync::Semaphore;
 
-/// Longest motion accepted in a request, in frames (10 min at 60 fps).
-pub const MAX_FRAMES: usize = 36_000;
+/// Longest motion accepted in a request, in seconds (inline or uploaded;
+/// the body-size limit bounds the frame count as well).
+pub const MAX_SECONDS: f64 = 600.0;
 
 /// Errors every endpoint can answer with.
 #[derive(Debug, thiserror::Error)]
@@ -132,10 +133,10 @@ pub fn motion_from_parts(
         }
     };
     let frames = translation.len();
-    if frames == 0 || frames > MAX_FRAMES {
+    if frames == 0 {
         return Err(ApiError::invalid(
             format!("{field}.translation"),
-            format!("{frames} frames; need 1..={MAX_FRAMES}"),
+            "no frames",
         ));
     }
     if rotations.len() != frames * sk.len() {
@@ -162,7 +163,7 @@ fn prefix(field: &str, e: ApiError) -> ApiError {
     }
 }
 
-/// The motion of an input, checked against the frame limit.
+/// The motion of an input, checked against the duration limit.
 pub fn resolve(field: &str, input: MotionInput) -> Result<Motion, ApiError> {
     let m = match input {
         MotionInput::Inline(m) => m,
@@ -177,10 +178,10 @@ pub fn resolve(field: &str, input: MotionInput) -> Result<Motion, ApiError> {
                 .motion
         }
     };
-    if m.frames() > MAX_FRAMES * 4 {
+    if m.duration_s() > MAX_SECONDS {
         return Err(ApiError::invalid(
             format!("{field}.frames"),
-            format!("{} frames is over the limit", m.frames()),
+            format!("{:.1} s is over the {MAX_SECONDS} s limit", m.duration_s()),
         ));
     }
     Ok(m)

@@ -22,6 +22,7 @@
 //! filtering (Fitzgerald 2010, as librosa's `hpss`): it stands in for the
 //! thesis's neural drum-stem separation.
 
+use crate::features::reflect_index;
 use crate::motion::MotionError;
 use rustfft::{num_complex::Complex, FftPlanner};
 
@@ -452,30 +453,13 @@ pub fn hpss_percussive(power: &[Vec<f64>]) -> Vec<Vec<f64>> {
     let mut w = Vec::with_capacity(31);
     for t in 0..t_n {
         for f in 0..f_n {
-            // Along time (harmonic), edges reflected like scipy's median_filter.
+            // Along time (harmonic), then along frequency (percussive),
+            // edges reflected like scipy's median_filter.
             w.clear();
-            for d in -k..=k {
-                let mut i = t as i64 + d;
-                if i < 0 {
-                    i = -i - 1;
-                }
-                if i >= t_n as i64 {
-                    i = 2 * t_n as i64 - i - 1;
-                }
-                w.push(mag[i.clamp(0, t_n as i64 - 1) as usize][f]);
-            }
+            w.extend((-k..=k).map(|d| mag[reflect_index(t as i64 + d, t_n)][f]));
             harm[t][f] = median(&mut w);
             w.clear();
-            for d in -k..=k {
-                let mut i = f as i64 + d;
-                if i < 0 {
-                    i = -i - 1;
-                }
-                if i >= f_n as i64 {
-                    i = 2 * f_n as i64 - i - 1;
-                }
-                w.push(mag[t][i.clamp(0, f_n as i64 - 1) as usize]);
-            }
+            w.extend((-k..=k).map(|d| mag[t][reflect_index(f as i64 + d, f_n)]));
             perc[t][f] = median(&mut w);
         }
     }

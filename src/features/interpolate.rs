@@ -26,7 +26,7 @@
 //! output is wrapped back to norms ≤ π.
 
 use super::{window, window_starts, Embedding, Pca, CHANNELS, COEFFS, FEATURE_FPS, WINDOW};
-use crate::motion::rotation::wrap_axis_angle;
+use crate::motion::rotation::{unwrap_axis_angle_rows, wrap_axis_angle_rows};
 use crate::motion::MotionError;
 use rustdct::DctPlanner;
 use rustfft::num_complex::Complex;
@@ -155,39 +155,14 @@ fn scaled(k: usize, n: usize) -> usize {
     ((k as f64) * n as f64 / WINDOW as f64).round() as usize
 }
 
-/// Make each joint's axis-angle continuous over time: every frame takes,
-/// among the equivalent vectors `v`, `v·(1 − 2π/|v|)`, `v·(1 + 2π/|v|)`, the
-/// one nearest the previous frame's.
+/// Make each joint's axis-angle continuous over time (see
+/// [`unwrap_axis_angle_rows`]).
 pub fn unwrap_axis_angle(x: &mut Channels) {
-    for t in 1..x.len() {
-        for j in 0..CHANNELS / 3 {
-            let p = [x[t - 1][3 * j], x[t - 1][3 * j + 1], x[t - 1][3 * j + 2]];
-            let v = [x[t][3 * j], x[t][3 * j + 1], x[t][3 * j + 2]];
-            let th = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if th < 1e-9 {
-                continue;
-            }
-            let tau = 2.0 * std::f64::consts::PI;
-            let best = [1.0, 1.0 - tau / th, 1.0 + tau / th]
-                .into_iter()
-                .map(|s| [v[0] * s, v[1] * s, v[2] * s])
-                .min_by(|a, b| {
-                    let d = |w: &[f64; 3]| (0..3).map(|k| (w[k] - p[k]).powi(2)).sum::<f64>();
-                    d(a).total_cmp(&d(b))
-                })
-                .expect("three candidates");
-            x[t][3 * j..3 * j + 3].copy_from_slice(&best);
-        }
-    }
+    unwrap_axis_angle_rows(x.as_flattened_mut(), CHANNELS);
 }
 
 fn wrap_all(x: &mut Channels) {
-    for row in x.iter_mut() {
-        for j in 0..CHANNELS / 3 {
-            let w = wrap_axis_angle([row[3 * j], row[3 * j + 1], row[3 * j + 2]]);
-            row[3 * j..3 * j + 3].copy_from_slice(&w);
-        }
-    }
+    wrap_axis_angle_rows(x.as_flattened_mut(), CHANNELS);
 }
 
 /// An objective: loss and gradient with respect to the channel matrix.

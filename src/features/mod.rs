@@ -99,6 +99,17 @@ impl StftParams {
     }
 }
 
+/// Index `i` into a sequence of `n` (> 0) items with half-sample symmetric
+/// edges (`d c b a | a b c d | d c b a`, scipy's "reflect" mode).
+pub fn reflect_index(i: i64, n: usize) -> usize {
+    let n = n as i64;
+    let mut i = i;
+    while i < 0 || i >= n {
+        i = if i < 0 { -i - 1 } else { 2 * n - i - 1 };
+    }
+    i as usize
+}
+
 /// A motion as SMPL-24 at 60 fps: SMPL-13 is expanded (dropped joints at
 /// rest), other skeletons are retargeted (built-in joint map) onto the
 /// 13-joint subset first.

@@ -136,6 +136,26 @@ impl Pca {
     }
 }
 
+/// `a · b` for `d × d` row-major matrices.
+pub fn matmul(a: &[f64], b: &[f64], d: usize) -> Vec<f64> {
+    let mut out = vec![0.0; d * d];
+    for i in 0..d {
+        for m in 0..d {
+            let x = a[i * d + m];
+            if x == 0.0 {
+                continue;
+            }
+            for (o, y) in out[i * d..(i + 1) * d]
+                .iter_mut()
+                .zip(&b[m * d..(m + 1) * d])
+            {
+                *o += x * y;
+            }
+        }
+    }
+    out
+}
+
 /// Cyclic Jacobi eigen-decomposition of a symmetric `n × n` matrix
 /// (row-major). Returns (eigenvalues, eigenvectors as columns, row-major).
 pub fn jacobi_eigen(mut a: Vec<f64>, n: usize) -> (Vec<f64>, Vec<f64>) {

@@ -18,7 +18,8 @@
 //!   dimension standardised by the real set's mean and standard deviation.
 //! - [`beat_alignment`]: both directions, see its docs.
 
-use crate::features::pca::jacobi_eigen;
+use crate::features::pca::{jacobi_eigen, matmul};
+use crate::features::reflect_index;
 use crate::motion::rotation::{cross, dot, norm, sub, Vec3};
 use crate::motion::{Motion, Skeleton};
 
@@ -342,18 +343,7 @@ pub fn fid(real: &[Vec<f64>], fake: &[Vec<f64>]) -> Option<f64> {
                 .sum();
         }
     }
-    let mut t = vec![0.0; d * d];
-    for i in 0..d {
-        for k in 0..d {
-            t[i * d + k] = (0..d).map(|m| sq[i * d + m] * cb[m * d + k]).sum();
-        }
-    }
-    let mut mmat = vec![0.0; d * d];
-    for i in 0..d {
-        for k in 0..d {
-            mmat[i * d + k] = (0..d).map(|m| t[i * d + m] * sq[m * d + k]).sum();
-        }
-    }
+    let mut mmat = matmul(&matmul(&sq, &cb, d), &sq, d);
     for i in 0..d {
         for k in i + 1..d {
             let s = 0.5 * (mmat[i * d + k] + mmat[k * d + i]);
@@ -398,16 +388,14 @@ pub fn gaussian_smooth(x: &[f64], sigma: f64) -> Vec<f64> {
         .map(|k| (-(k * k) as f64 / (2.0 * sigma * sigma)).exp())
         .collect();
     let ws: f64 = w.iter().sum();
-    let n = x.len() as i64;
-    let at = |i: i64| -> f64 {
-        let mut i = i;
-        while i < 0 || i >= n {
-            i = if i < 0 { -i - 1 } else { 2 * n - i - 1 };
-        }
-        x[i as usize]
-    };
-    (0..n)
-        .map(|t| (-r..=r).zip(&w).map(|(k, wk)| wk * at(t + k)).sum::<f64>() / ws)
+    (0..x.len() as i64)
+        .map(|t| {
+            (-r..=r)
+                .zip(&w)
+                .map(|(k, wk)| wk * x[reflect_index(t + k, x.len())])
+                .sum::<f64>()
+                / ws
+        })
         .collect()
 }
 

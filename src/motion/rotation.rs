@@ -584,3 +584,40 @@ mod tests {
         assert!(close(&quat_rotate(q, from), &scale(from, -1.0), 1e-12));
     }
 }
+
+/// Wrap every consecutive triple of a `[frames][channels]` row-major matrix
+/// to an axis-angle with `|θ| ≤ π` (a trailing partial triple is left).
+pub fn wrap_axis_angle_rows(data: &mut [f64], channels: usize) {
+    for row in data.chunks_mut(channels) {
+        for v in row.chunks_exact_mut(3) {
+            let w = wrap_axis_angle([v[0], v[1], v[2]]);
+            v.copy_from_slice(&w);
+        }
+    }
+}
+
+/// Make each joint's axis-angle continuous over time in a `[frames][channels]`
+/// row-major matrix: every frame takes, among the equivalent vectors `v`,
+/// `v·(1 − 2π/|v|)`, `v·(1 + 2π/|v|)`, the one nearest the previous frame's.
+pub fn unwrap_axis_angle_rows(data: &mut [f64], channels: usize) {
+    let tau = 2.0 * std::f64::consts::PI;
+    let frames = data.len() / channels.max(1);
+    for t in 1..frames {
+        let (prev, cur) = data[(t - 1) * channels..(t + 1) * channels].split_at_mut(channels);
+        for (p, v) in prev.chunks_exact(3).zip(cur.chunks_exact_mut(3)) {
+            let th = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if th < 1e-9 {
+                continue;
+            }
+            let d = |w: &[f64; 3]| (0..3).map(|k| (w[k] - p[k]).powi(2)).sum::<f64>();
+            let mut best = [v[0], v[1], v[2]];
+            for s in [1.0 - tau / th, 1.0 + tau / th] {
+                let w = [v[0] * s, v[1] * s, v[2] * s];
+                if d(&w) < d(&best) {
+                    best = w;
+                }
+            }
+            v.copy_from_slice(&best);
+        }
+    }
+}

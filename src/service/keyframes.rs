@@ -76,33 +76,55 @@ pub enum Music {
     Audio(Box<crate::audio::MusicFeatures>),
 }
 
-/// The onset curve and peaks (motion-length, 60 fps) a strategy reads.
+/// Onset peaks within this many frames (50 ms at 60 fps) of either end
+/// are not keyframe candidates (thesis 001 §3.4.2's guard).
+pub const PEAK_GUARD: usize = 3;
+
+/// The onset-like curve and its peaks (motion length, the clip's frames) a
+/// music-based strategy reads: a metronome's beats for `onset` with a BPM,
+/// or the analysed audio's onset, percussive-onset or NMFD curve.
 fn onset_curve(
     music: &Music,
     select: Select,
     n: usize,
+    fps: f64,
 ) -> Result<(Vec<f64>, Vec<usize>), MotionError> {
+    let bad = |reason: String| MotionError::invalid("keyframes", "music", reason);
     let fit =
         |c: &[f64]| -> Vec<f64> { (0..n).map(|i| c.get(i).copied().unwrap_or(0.0)).collect() };
     let (curve, peaks) = match (music, select) {
+        (Music::Bpm(bpm), Select::Onset) => {
+            let beats = beat_frames(*bpm, fps, n)?;
+            let mut curve = vec![0.0; n];
+            beats.iter().for_each(|&b| curve[b] = 1.0);
+            (curve, beats)
+        }
+        (Music::Audio(_), _) if (fps - crate::audio::FEATURE_FPS).abs() > 1e-9 => {
+            return Err(MotionError::invalid(
+                "keyframes",
+                "fps",
+                "music-based selection needs the clip at 60 fps",
+            ))
+        }
         (Music::Audio(f), Select::Onset) => (fit(&f.onset), f.peaks.clone()),
         (Music::Audio(f), Select::Percussive) => {
             (fit(&f.percussive_onset), f.percussive_peaks.clone())
         }
         (Music::Audio(f), Select::Nmfd) => (fit(&f.nmfd), f.nmfd_peaks.clone()),
+        (_, Select::Onset) => return Err(bad(
+            "onset selection needs music: give --music FILE or --bpm (a metronome at that tempo)"
+                .into(),
+        )),
         _ => {
-            return Err(MotionError::invalid(
-                "keyframes",
-                "music",
-                format!("{} selection needs an audio file", select.name()),
-            ))
+            return Err(bad(format!(
+                "{} selection needs an audio file (--music)",
+                select.name()
+            )))
         }
     };
     if curve.iter().all(|&v| v == 0.0) {
-        return Err(MotionError::invalid(
-            "keyframes",
-            "music",
-            "the music has no onsets over the clip (is it silent?)",
+        return Err(bad(
+            "the music has no onsets over the clip (is it silent?)".into()
         ));
     }
     Ok((curve, peaks.into_iter().filter(|&p| p < n).collect()))
@@ -166,33 +188,10 @@ pub fn select_keyframes(
             let cost = SegmentCost::new(position_curve(&p), 3 * m.joints());
             Ok(dp(&cost, count, None)?.0)
         }
-        Select::Onset | Select::Percussive | Select::Nmfd if matches!(music, Music::Audio(_)) => {
-            if (m.fps - 60.0).abs() > 1e-9 {
-                return Err(MotionError::invalid("keyframes", "fps", "music-based selection needs the clip at 60 fps"));
-            }
-            let (curve, peaks) = onset_curve(music, select, n)?;
-            from_peaks(&curve, &peaks, count, 3)
+        Select::Onset | Select::Percussive | Select::Nmfd => {
+            let (curve, peaks) = onset_curve(music, select, n, m.fps)?;
+            from_peaks(&curve, &peaks, count, PEAK_GUARD)
         }
-        Select::Onset => match music {
-            Music::Bpm(bpm) => {
-                let beats = beat_frames(*bpm, m.fps, n)?;
-                let mut curve = vec![0.0; n];
-                beats.iter().for_each(|&b| curve[b] = 1.0);
-                // Peaks near the ends are dropped within a tenth of a beat.
-                let guard = (0.1 * 60.0 / bpm * m.fps).round() as usize;
-                from_peaks(&curve, &beats, count, guard)
-            }
-            _ => Err(MotionError::invalid(
-                "keyframes",
-                "music",
-                "onset selection needs music: give --music FILE or --bpm (a metronome at that tempo)",
-            )),
-        },
-        Select::Percussive | Select::Nmfd => Err(MotionError::invalid(
-            "keyframes",
-            "music",
-            format!("{} selection needs an audio file (--music)", select.name()),
-        )),
     }
 }
 

@@ -16,7 +16,7 @@ pub mod eval;
 pub mod tile;
 pub mod vocab;
 
-use crate::motion::rotation::{geodesic_axis_angle, wrap_axis_angle};
+use crate::motion::rotation::{geodesic_axis_angle, unwrap_axis_angle_rows, wrap_axis_angle_rows};
 use crate::motion::MotionError;
 use std::f64::consts::PI;
 
@@ -322,41 +322,14 @@ impl Codec for Quantile {
 /// `|θ| ≤ π` (a trailing partial triple is left as is).
 pub fn wrap_joints(x: &Series) -> Series {
     let mut out = x.clone();
-    let c = x.channels;
-    for row in out.data.chunks_mut(c) {
-        for j in 0..c / 3 {
-            let w = wrap_axis_angle([row[3 * j], row[3 * j + 1], row[3 * j + 2]]);
-            row[3 * j..3 * j + 3].copy_from_slice(&w);
-        }
-    }
+    wrap_axis_angle_rows(&mut out.data, x.channels);
     out
 }
 
 /// Make each joint's axis-angle continuous over time (see
-/// [`crate::features::interpolate::unwrap_axis_angle`]), for any channel
-/// count that is a multiple of 3.
+/// [`unwrap_axis_angle_rows`]), for any channel count.
 pub fn unwrap_joints(x: &mut Series) {
-    let c = x.channels;
-    let tau = 2.0 * PI;
-    for t in 1..x.frames() {
-        for j in 0..c / 3 {
-            let p: [f64; 3] = std::array::from_fn(|k| x.data[(t - 1) * c + 3 * j + k]);
-            let v: [f64; 3] = std::array::from_fn(|k| x.data[t * c + 3 * j + k]);
-            let th = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if th < 1e-9 {
-                continue;
-            }
-            let d = |w: &[f64; 3]| (0..3).map(|k| (w[k] - p[k]).powi(2)).sum::<f64>();
-            let mut best = v;
-            for s in [1.0 - tau / th, 1.0 + tau / th] {
-                let w = [v[0] * s, v[1] * s, v[2] * s];
-                if d(&w) < d(&best) {
-                    best = w;
-                }
-            }
-            x.data[t * c + 3 * j..t * c + 3 * j + 3].copy_from_slice(&best);
-        }
-    }
+    unwrap_axis_angle_rows(&mut x.data, x.channels);
 }
 
 /// Geodesic reconstruction error between two axis-angle series (radians,

@@ -19,7 +19,7 @@ use super::{
     bad_symbol, check_channels, quantile_bins, quantile_encode, unwrap_joints, Codec, Series,
 };
 use crate::features::interpolate::Dct;
-use crate::features::pca::jacobi_eigen;
+use crate::features::pca::{jacobi_eigen, matmul};
 use crate::motion::MotionError;
 use rand::{Rng, SeedableRng};
 
@@ -342,13 +342,7 @@ fn sym_decorrelate(w: &[f64], d: usize) -> Vec<f64> {
                 .sum();
         }
     }
-    let mut out = vec![0.0; d * d];
-    for a in 0..d {
-        for b in 0..d {
-            out[a * d + b] = (0..d).map(|k| m[a * d + k] * w[k * d + b]).sum();
-        }
-    }
-    out
+    matmul(&m, w, d)
 }
 
 impl Codec for TileCodec {
