@@ -31,9 +31,12 @@ pub mod data;
 pub mod features;
 pub mod index;
 pub mod keyframes;
+pub mod lm;
 pub mod motion;
 pub mod plot;
 pub mod server;
 pub mod service;
 pub mod store;
 pub mod tokenize;
+#[cfg(feature = "train")]
+pub mod train;

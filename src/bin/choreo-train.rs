@@ -1,32 +1,147 @@
-//! `choreo-train`: the offline trainer. For now it surveys a corpus — what a
-//! training run would read — through the same readers the server uses.
+//! `choreo-train`: the offline trainer. Reads corpora through the shared
+//! readers, tokenizes with the shared vocabulary, trains the motion language
+//! model in candle, and exports ONNX + manifest for the server.
 
-use anyhow::Result;
+use anyhow::{bail, Context, Result};
+use choreo::lm::{bits_per_frame, ModelConfig, Objective, PosScheme};
 use choreo::motion::io::{self, ReadOptions};
-use clap::{Parser, Subcommand};
+use choreo::plot::{render_png, Chart, Line, PALETTE};
+use choreo::train::data::{self, Corpus};
+use choreo::train::model::{AdamW, Gpt};
+use choreo::train::{self as tr, baselines, CheckpointState, LogPoint, RunSettings};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::rngs::StdRng;
+use rand::SeedableRng;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 #[derive(Parser)]
-#[command(
-    name = "choreo-train",
-    version,
-    about = "Offline trainer for choreo's motion models"
-)]
+#[command(name = "choreo-train", version, about = "Offline trainer for choreo's motion models")]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
 }
 
+#[derive(Clone, Copy, ValueEnum)]
+enum Positions {
+    Absolute,
+    FrameSlot,
+}
+#[derive(Clone, Copy, ValueEnum)]
+enum Obj {
+    Causal,
+    Masked,
+}
+
+#[derive(Args, Clone)]
+struct DataArgs {
+    /// The data root holding aistpp/, bandai/, cmu/ (and amass/ if you have it).
+    #[arg(long, env = "CHOREO_DATA", default_value = "../shared/data")]
+    data: PathBuf,
+    /// Corpora to read: aistpp, bandai, cmu, amass, or any folder of motion files.
+    #[arg(long = "corpus", default_values_t = vec!["aistpp".to_string(), "bandai".to_string(), "cmu".to_string()])]
+    corpora: Vec<String>,
+    /// Fraction of each corpus's sequences held out for validation.
+    #[arg(long, default_value_t = 0.1)]
+    val_fraction: f64,
+    /// Skip the left/right mirror augmentation.
+    #[arg(long)]
+    no_mirror: bool,
+}
+
+#[derive(Args, Clone)]
+struct TrainArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// Output folder: checkpoint, log, loss curve, export/.
+    #[arg(long)]
+    out: PathBuf,
+    /// Fine-tune from this checkpoint folder (its vocabulary and architecture).
+    #[arg(long)]
+    init: Option<PathBuf>,
+    /// Continue the run saved in --out.
+    #[arg(long)]
+    resume: bool,
+    #[arg(long, default_value_t = 128)]
+    d_model: usize,
+    #[arg(long, default_value_t = 4)]
+    layers: usize,
+    #[arg(long, default_value_t = 4)]
+    heads: usize,
+    /// Frames per context window.
+    #[arg(long, default_value_t = 8)]
+    frames: usize,
+    #[arg(long, value_enum, default_value = "frame-slot")]
+    positions: Positions,
+    #[arg(long, value_enum, default_value = "causal")]
+    objective: Obj,
+    /// 13 (the thesis's simplification) or 24 SMPL joints.
+    #[arg(long, default_value_t = 13)]
+    joints: usize,
+    #[arg(long, default_value_t = 20.0)]
+    fps: f64,
+    /// Label kinds the prefix may carry.
+    #[arg(long = "cond", default_values_t = ["genre", "situation", "dancer", "music", "content", "style"].map(String::from).to_vec())]
+    cond: Vec<String>,
+    /// Label kinds to learn class heads for (none = no heads).
+    #[arg(long = "classify")]
+    classify: Vec<String>,
+    #[arg(long, default_value_t = 2000)]
+    steps: usize,
+    #[arg(long, default_value_t = 16)]
+    batch: usize,
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    #[arg(long, default_value_t = 0.1)]
+    dropout: f32,
+    #[arg(long, default_value_t = 200)]
+    eval_every: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Stop after this many seconds (0 = run all steps).
+    #[arg(long, default_value_t = 0.0)]
+    max_seconds: f64,
+    /// Export ONNX + manifest to OUT/export at the end.
+    #[arg(long)]
+    export: bool,
+    /// Instead of training: sweep the learning rate from 1e-6 to 1 over
+    /// --steps steps and plot the loss (thesis Fig. 4.9).
+    #[arg(long)]
+    lr_sweep: bool,
+}
+
 #[derive(Subcommand)]
 enum Cmd {
-    /// Read every motion file under DIR and summarise it by corpus: files,
-    /// frames, seconds, unreadable files with their reasons.
+    /// Read every motion file under DIR and summarise it by corpus.
     Survey {
         #[arg(long, env = "CHOREO_DATA")]
         data: PathBuf,
         #[arg(long)]
         json: bool,
+    },
+    /// Train (from scratch, from --init, or --resume) and optionally export.
+    Train(Box<TrainArgs>),
+    /// Export a checkpoint as ONNX + manifest.
+    Export {
+        #[arg(long)]
+        checkpoint: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Compare the exported model in tract with the trainer's forward pass.
+    Parity {
+        #[arg(long)]
+        checkpoint: PathBuf,
+    },
+    /// Classification table shaped like thesis Table 4.8: the model's class
+    /// heads vs majority class vs LDA on the same held-out windows.
+    EvalClassify {
+        #[arg(long)]
+        checkpoint: PathBuf,
+        #[command(flatten)]
+        data: DataArgs,
     },
 }
 
@@ -39,45 +154,444 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
-        Cmd::Survey { data, json } => {
-            let files = choreo::data::files_with_ext(&data, &["pkl", "npz", "bvh"]);
-            let mut by: BTreeMap<String, (usize, usize, f64)> = BTreeMap::new();
-            let mut errors = Vec::new();
-            for f in &files {
-                match io::read_path(f, &ReadOptions::default()) {
-                    Ok(l) => {
-                        let m = l.motion;
-                        let corpus = m.labels.get("corpus").cloned().unwrap_or_else(|| l.format.name().to_string());
-                        let e = by.entry(corpus).or_default();
-                        e.0 += 1;
-                        e.1 += m.frames();
-                        e.2 += m.duration_s();
-                    }
-                    Err(e) => errors.push(serde_json::json!({"file": f.display().to_string(), "reason": e.to_string()})),
-                }
-            }
-            if json {
-                let corpora: Vec<_> = by
-                    .iter()
-                    .map(|(k, v)| serde_json::json!({"corpus": k, "files": v.0, "frames": v.1, "seconds": v.2}))
-                    .collect();
-                println!(
-                    "{}",
-                    serde_json::json!({"corpora": corpora, "errors": errors})
-                );
-            } else {
-                println!(
-                    "{:<12} {:>6} {:>9} {:>9}",
-                    "corpus", "files", "frames", "seconds"
-                );
-                for (k, v) in &by {
-                    println!("{:<12} {:>6} {:>9} {:>9.1}", k, v.0, v.1, v.2);
-                }
-                for e in &errors {
-                    println!("unreadable: {} — {}", e["file"], e["reason"]);
-                }
-            }
+        Cmd::Survey { data, json } => survey(&data, json),
+        Cmd::Train(a) => train(*a),
+        Cmd::Export { checkpoint, out } => {
+            let dev = tr::device();
+            let (st, model, _) = tr::load_checkpoint(&checkpoint, &dev)?;
+            let m = tr::export::export(&model, &st.vocabulary, st.data.clone(), st.metrics.clone(), training_json(&st), &out)?;
+            println!("exported {} ({} parameters) to {}", m.onnx, model.n_params(), out.display());
             Ok(())
         }
+        Cmd::Parity { checkpoint } => {
+            let dev = tr::device();
+            let (st, model, _) = tr::load_checkpoint(&checkpoint, &dev)?;
+            let dir = tempdir_in(&checkpoint)?;
+            tr::export::export(&model, &st.vocabulary, st.data.clone(), st.metrics.clone(), training_json(&st), &dir)?;
+            let r = choreo::train::parity::check(&model, &st.vocabulary, &dir, 7)?;
+            println!("{r}");
+            let _ = std::fs::remove_dir_all(&dir);
+            Ok(())
+        }
+        Cmd::EvalClassify { checkpoint, data } => eval_classify(&checkpoint, &data),
     }
+}
+
+fn tempdir_in(base: &Path) -> Result<PathBuf> {
+    let d = base.join(format!("parity-{}", std::process::id()));
+    std::fs::create_dir_all(&d)?;
+    Ok(d)
+}
+
+fn training_json(st: &CheckpointState) -> serde_json::Value {
+    serde_json::json!({
+        "regime": st.regime,
+        "parent": st.parent,
+        "steps": st.step,
+        "settings": st.settings,
+        "final": st.history.last(),
+    })
+}
+
+fn survey(data: &Path, json: bool) -> Result<()> {
+    let files = choreo::data::files_with_ext(data, &["pkl", "npz", "bvh"]);
+    let mut by: BTreeMap<String, (usize, usize, f64)> = BTreeMap::new();
+    let mut errors = Vec::new();
+    for f in &files {
+        match io::read_path(f, &ReadOptions::default()) {
+            Ok(l) => {
+                let m = l.motion;
+                let corpus = m.labels.get("corpus").cloned().unwrap_or_else(|| l.format.name().to_string());
+                let e = by.entry(corpus).or_default();
+                e.0 += 1;
+                e.1 += m.frames();
+                e.2 += m.duration_s();
+            }
+            Err(e) => errors.push(serde_json::json!({"file": f.display().to_string(), "reason": e.to_string()})),
+        }
+    }
+    if json {
+        let corpora: Vec<_> = by
+            .iter()
+            .map(|(k, v)| serde_json::json!({"corpus": k, "files": v.0, "frames": v.1, "seconds": v.2}))
+            .collect();
+        println!("{}", serde_json::json!({"corpora": corpora, "errors": errors}));
+    } else {
+        println!("{:<12} {:>6} {:>9} {:>9}", "corpus", "files", "frames", "seconds");
+        for (k, v) in &by {
+            println!("{:<12} {:>6} {:>9} {:>9.1}", k, v.0, v.1, v.2);
+        }
+        for e in &errors {
+            println!("unreadable: {} — {}", e["file"], e["reason"]);
+        }
+    }
+    Ok(())
+}
+
+fn load_corpus(a: &DataArgs, vocab: Option<&choreo::tokenize::vocab::Vocabulary>, kinds: &[String], smpl24: bool, fps: f64) -> Result<(choreo::tokenize::vocab::Vocabulary, Corpus)> {
+    let dirs = data::corpus_dirs(&a.data, &a.corpora)?;
+    let (motions, info) = data::read_motions(&dirs)?;
+    let vocab = match vocab {
+        Some(v) => v.clone(),
+        None => {
+            let mut v = data::vocabulary_for(&motions, kinds, smpl24);
+            v.fps = fps;
+            v
+        }
+    };
+    let corpus = data::build(motions, &vocab, a.val_fraction, !a.no_mirror, info)?;
+    Ok((vocab, corpus))
+}
+
+fn train(a: TrainArgs) -> Result<()> {
+    let dev = tr::device();
+    let t0 = Instant::now();
+    let mut kinds = a.cond.clone();
+    for k in &a.classify {
+        if !kinds.contains(k) {
+            kinds.push(k.clone());
+        }
+    }
+    if a.joints != 13 && a.joints != 24 {
+        bail!("--joints: {} (13 or 24)", a.joints);
+    }
+    // The starting point: resume, fine-tune, or scratch.
+    let resume_state = if a.resume { Some(tr::load_checkpoint(&a.out, &dev)?) } else { None };
+    let init_state = match (&a.init, &resume_state) {
+        (Some(p), None) => Some(tr::load_checkpoint(p, &dev)?),
+        _ => None,
+    };
+    let known_vocab = resume_state.as_ref().or(init_state.as_ref()).map(|s| s.0.vocabulary.clone());
+    let (vocab, corpus) = load_corpus(&a.data, known_vocab.as_ref(), &kinds, a.joints == 24, a.fps)?;
+    let fl = vocab.frame_len();
+    eprintln!(
+        "data: {} files from {:?}; {} train / {} validation sequences; {} training tokens (mirrors included); read in {:.1} s",
+        corpus.info.files,
+        corpus.info.corpora,
+        corpus.info.train_sequences,
+        corpus.info.val_sequences,
+        corpus.info.train_tokens,
+        t0.elapsed().as_secs_f64()
+    );
+    let settings = RunSettings {
+        steps: a.steps,
+        batch: a.batch,
+        lr: a.lr,
+        min_lr_ratio: 0.1,
+        warmup: (a.steps / 20).max(1),
+        weight_decay: 0.1,
+        dropout: a.dropout,
+        eval_every: a.eval_every.max(1),
+        seed: a.seed,
+        keep_label: 0.8,
+        classify_fraction: if a.classify.is_empty() { 0.0 } else { 0.5 },
+        class_weight: 1.0,
+        mask_rate: 0.15,
+        max_seconds: a.max_seconds,
+    };
+    let (mut state, model, mut opt) = match (resume_state, init_state) {
+        (Some((st, m, o)), _) => (st, m, o),
+        (None, Some((st, mut m, _))) => {
+            // Fine-tune: same architecture and vocabulary, fresh optimiser;
+            // class heads may be added.
+            let mut cfg = st.config.clone();
+            cfg.classes = class_values(&vocab, &a.classify)?;
+            if cfg.classes != st.config.classes {
+                let mut fresh = Gpt::new(cfg.clone(), a.dropout, &dev)?;
+                for (k, v) in &m.params {
+                    if let Some(dst) = fresh.params.get(k) {
+                        if dst.dims() == v.dims() {
+                            dst.set(v.as_tensor())?;
+                        }
+                    }
+                }
+                fresh.dropout = a.dropout;
+                m = fresh;
+            }
+            m.dropout = a.dropout;
+            let regime = if a.classify.is_empty() { "fine-tune" } else { "fine-tune+classify" };
+            let s = CheckpointState {
+                config: cfg,
+                vocabulary: vocab.clone(),
+                settings: settings.clone(),
+                step: 0,
+                adam_step: 0,
+                history: Vec::new(),
+                regime: regime.into(),
+                parent: a.init.as_ref().map(|p| p.display().to_string()),
+                data: corpus.info.clone(),
+                metrics: BTreeMap::new(),
+            };
+            (s, m, AdamW::new(a.lr, settings.weight_decay))
+        }
+        (None, None) => {
+            let cfg = ModelConfig {
+                vocab_size: vocab.size(),
+                d_model: a.d_model,
+                n_layers: a.layers,
+                n_heads: a.heads,
+                d_ff: 4 * a.d_model,
+                max_frames: a.frames,
+                frame_len: fl,
+                cond_kinds: a.cond.iter().filter(|k| vocab.labels.contains_key(*k)).cloned().collect(),
+                classes: class_values(&vocab, &a.classify)?,
+                positions: match a.positions {
+                    Positions::Absolute => PosScheme::Absolute,
+                    Positions::FrameSlot => PosScheme::FrameSlot,
+                },
+                objective: match a.objective {
+                    Obj::Causal => Objective::Causal,
+                    Obj::Masked => Objective::Masked,
+                },
+                ln_eps: 1e-5,
+            };
+            cfg.validate("--d-model/--heads").map_err(|e| anyhow::anyhow!("{e}"))?;
+            let m = Gpt::new(cfg.clone(), a.dropout, &dev)?;
+            let s = CheckpointState {
+                config: cfg,
+                vocabulary: vocab.clone(),
+                settings: settings.clone(),
+                step: 0,
+                adam_step: 0,
+                history: Vec::new(),
+                regime: "scratch".into(),
+                parent: None,
+                data: corpus.info.clone(),
+                metrics: BTreeMap::new(),
+            };
+            (s, m, AdamW::new(a.lr, settings.weight_decay))
+        }
+    };
+    if !state.settings.steps.eq(&settings.steps) && state.step == 0 {
+        state.settings = settings.clone();
+    }
+    let s = state.settings.clone();
+    eprintln!(
+        "model: {} parameters, d_model {}, {} layers, {} heads, window {} frames ({} tokens), {:?} positions, {:?}; regime {}",
+        model.n_params(),
+        model.cfg.d_model,
+        model.cfg.n_layers,
+        model.cfg.n_heads,
+        model.cfg.max_frames,
+        model.cfg.block(),
+        model.cfg.positions,
+        model.cfg.objective,
+        state.regime
+    );
+    let cum = tr::cumulative(&corpus, fl);
+    let mut rng = StdRng::seed_from_u64(s.seed.wrapping_add(state.step as u64));
+    std::fs::create_dir_all(&a.out)?;
+
+    if a.lr_sweep {
+        return lr_sweep(&a, &model, &vocab, &corpus, &cum, &s, &mut rng);
+    }
+
+    let pb = ProgressBar::new(s.steps as u64);
+    pb.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} steps · {msg} · {elapsed_precise} < {eta_precise}")
+            .expect("template"),
+    );
+    pb.set_position(state.step as u64);
+    let t_train = Instant::now();
+    let (mut tok_acc, mut loss_acc, mut n_acc) = (0usize, 0f64, 0usize);
+    let mut t_win = Instant::now();
+    let mut tokens_total = 0usize;
+    while state.step < s.steps {
+        if s.max_seconds > 0.0 && t_train.elapsed().as_secs_f64() > s.max_seconds {
+            pb.println(format!("time limit reached at step {}", state.step));
+            break;
+        }
+        opt.lr = tr::lr_at(&s, state.step);
+        let (loss, toks) = tr::train_step(&model, &mut opt, &vocab, &corpus, &cum, &s, &mut rng, &dev)?;
+        state.step += 1;
+        tok_acc += toks;
+        tokens_total += toks;
+        loss_acc += loss;
+        n_acc += 1;
+        let tps = tok_acc as f64 / t_win.elapsed().as_secs_f64().max(1e-9);
+        pb.set_message(format!("loss {loss:.3} · {tps:.0} tok/s"));
+        pb.set_position(state.step as u64);
+        if state.step % s.eval_every == 0 || state.step == s.steps {
+            let ev = tr::evaluate(&model, &vocab, &corpus, s.batch, &dev)?;
+            let point = LogPoint {
+                step: state.step,
+                lr: opt.lr,
+                train_loss: loss_acc / n_acc as f64,
+                val_loss: Some(ev.loss),
+                val_bits_per_frame: Some(ev.bits_per_frame),
+                tokens_per_s: tps,
+            };
+            let acc: Vec<String> = ev.accuracy.iter().map(|(k, a, n)| format!("{k} {:.1}% of {n}", 100.0 * a)).collect();
+            pb.println(format!(
+                "step {:>6}  train {:.4}  val {:.4} ({:.1} bits/frame)  {:.0} tok/s  {}",
+                state.step,
+                point.train_loss,
+                ev.loss,
+                ev.bits_per_frame,
+                tps,
+                acc.join("  ")
+            ));
+            state.history.push(point);
+            state.adam_step = opt.step;
+            tr::save_checkpoint(&a.out, &model, &opt, &state)?;
+            plot_history(&state.history, &a.out.join("loss.png"))?;
+            (tok_acc, loss_acc, n_acc) = (0, 0.0, 0);
+            t_win = Instant::now();
+        }
+    }
+    pb.finish_and_clear();
+    let secs = t_train.elapsed().as_secs_f64();
+    // Final held-out figures and the unigram floor on the same tokens.
+    let ev = tr::evaluate(&model, &vocab, &corpus, s.batch, &dev)?;
+    let (uni, uni_slot) = baselines::unigram_losses(&corpus.train, &corpus.val, vocab.size(), fl);
+    let m = &mut state.metrics;
+    m.insert("val_loss".into(), ev.loss);
+    m.insert("val_bits_per_frame".into(), ev.bits_per_frame);
+    m.insert("unigram_loss".into(), uni);
+    m.insert("unigram_bits_per_frame".into(), bits_per_frame(uni, fl));
+    m.insert("slot_unigram_loss".into(), uni_slot);
+    m.insert("slot_unigram_bits_per_frame".into(), bits_per_frame(uni_slot, fl));
+    m.insert("train_tokens_per_s".into(), tokens_total as f64 / secs.max(1e-9));
+    m.insert("train_seconds".into(), secs);
+    m.insert("parameters".into(), model.n_params() as f64);
+    for (k, acc, n) in &ev.accuracy {
+        m.insert(format!("val_accuracy_{k}"), *acc);
+        m.insert(format!("val_windows_{k}"), *n as f64);
+    }
+    state.adam_step = opt.step;
+    tr::save_checkpoint(&a.out, &model, &opt, &state)?;
+    plot_history(&state.history, &a.out.join("loss.png"))?;
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&serde_json::json!({
+            "out": a.out.display().to_string(),
+            "regime": state.regime,
+            "steps": state.step,
+            "metrics": state.metrics,
+        }))?
+    );
+    if a.export {
+        let dir = a.out.join("export");
+        let mf = tr::export::export(&model, &vocab, state.data.clone(), state.metrics.clone(), training_json(&state), &dir)?;
+        let r = tr::parity::check(&model, &vocab, &dir, s.seed + 1)?;
+        eprintln!("exported {} to {}; {r}", mf.onnx, dir.display());
+    }
+    Ok(())
+}
+
+fn class_values(vocab: &choreo::tokenize::vocab::Vocabulary, kinds: &[String]) -> Result<Vec<(String, Vec<String>)>> {
+    kinds
+        .iter()
+        .map(|k| {
+            let v = vocab
+                .labels
+                .get(k)
+                .with_context(|| format!("--classify {k}: no motion in the data carries that label"))?;
+            if v.len() < 2 {
+                bail!("--classify {k}: only one value ({v:?}) in the data");
+            }
+            Ok((k.clone(), v.iter().cloned().collect()))
+        })
+        .collect()
+}
+
+fn plot_history(h: &[LogPoint], path: &Path) -> Result<()> {
+    let train: Vec<(f64, f64)> = h.iter().map(|p| (p.step as f64, p.train_loss)).collect();
+    let val: Vec<(f64, f64)> = h.iter().filter_map(|p| p.val_loss.map(|v| (p.step as f64, v))).collect();
+    let chart = Chart {
+        title: "motion language model: loss per token".into(),
+        x_label: "step".into(),
+        y_label: "loss (nats/token)".into(),
+        log_x: false,
+        log_y: false,
+        lines: vec![
+            Line { name: "train".into(), points: train, color: PALETTE[0] },
+            Line { name: "validation".into(), points: val, color: PALETTE[1] },
+        ],
+    };
+    std::fs::write(path, render_png(&chart, 800, 500))?;
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn lr_sweep(
+    a: &TrainArgs,
+    model: &Gpt,
+    vocab: &choreo::tokenize::vocab::Vocabulary,
+    corpus: &Corpus,
+    cum: &[usize],
+    s: &RunSettings,
+    rng: &mut StdRng,
+) -> Result<()> {
+    let dev = tr::device();
+    let mut opt = AdamW::new(1e-6, s.weight_decay);
+    let (lo, hi) = (1e-6f64, 1.0f64);
+    let mut pts = Vec::new();
+    let mut smooth = None;
+    let mut best = f64::INFINITY;
+    for i in 0..s.steps {
+        let lr = lo * (hi / lo).powf(i as f64 / (s.steps - 1).max(1) as f64);
+        opt.lr = lr;
+        let (loss, _) = match tr::train_step(model, &mut opt, vocab, corpus, cum, s, rng, &dev) {
+            Ok(x) => x,
+            Err(_) => break,
+        };
+        let sm = match smooth {
+            None => loss,
+            Some(p) => 0.9 * p + 0.1 * loss,
+        };
+        smooth = Some(sm);
+        best = best.min(sm);
+        pts.push((lr, sm));
+        eprintln!("lr {lr:.2e}  loss {loss:.4}  smoothed {sm:.4}");
+        if sm > 4.0 * best && i > 10 {
+            break;
+        }
+    }
+    // The thesis's rule (Fig. 4.9): a tenth of where the loss turns up.
+    let turn = pts.iter().min_by(|x, y| x.1.total_cmp(&y.1)).map(|p| p.0).unwrap_or(1e-3);
+    let chart = Chart {
+        title: "learning-rate sweep".into(),
+        x_label: "learning rate".into(),
+        y_label: "smoothed loss".into(),
+        log_x: true,
+        log_y: false,
+        lines: vec![Line { name: "loss".into(), points: pts.clone(), color: PALETTE[0] }],
+    };
+    std::fs::write(a.out.join("lr_sweep.png"), render_png(&chart, 800, 500))?;
+    std::fs::write(a.out.join("lr_sweep.json"), serde_json::to_string_pretty(&pts)?)?;
+    println!("loss turns up near lr {turn:.2e}; suggested lr {:.2e} (a tenth of it)", turn / 10.0);
+    Ok(())
+}
+
+fn eval_classify(ckpt: &Path, a: &DataArgs) -> Result<()> {
+    let dev = tr::device();
+    let (st, model, _) = tr::load_checkpoint(ckpt, &dev)?;
+    if st.config.classes.is_empty() {
+        bail!("{}: the model has no class heads (train with --classify KIND)", ckpt.display());
+    }
+    let kinds: Vec<String> = st.config.classes.iter().map(|c| c.0.clone()).collect();
+    let (vocab, corpus) = load_corpus(a, Some(&st.vocabulary), &kinds, false, st.vocabulary.fps)?;
+    let fl = vocab.frame_len();
+    let w = st.config.max_frames;
+    let ev = tr::evaluate(&model, &vocab, &corpus, 16, &dev)?;
+    let train_w = data::eval_windows(&corpus.train, fl, w);
+    let val_w = data::eval_windows(&corpus.val, fl, w);
+    println!("Classification accuracy (%) on held-out windows of {w} frames ({} validation sequences of {:?})", corpus.val.len(), corpus.info.corpora);
+    println!("{:<22} {}", "method", kinds.iter().map(|k| format!("{k:>10}")).collect::<String>());
+    let mut rows: Vec<(String, Vec<f64>)> = vec![("majority class".into(), vec![]), ("LDA".into(), vec![]), ("our model".into(), vec![])];
+    let mut ns = Vec::new();
+    for (k, values) in &st.config.classes {
+        let (maj, lda, n) = baselines::classification_baselines(&train_w, &val_w, k, values, fl, vocab.bins);
+        rows[0].1.push(100.0 * maj);
+        rows[1].1.push(100.0 * lda);
+        let acc = ev.accuracy.iter().find(|x| &x.0 == k).map(|x| x.1).unwrap_or(0.0);
+        rows[2].1.push(100.0 * acc);
+        ns.push(n);
+    }
+    for (name, v) in rows {
+        println!("{:<22} {}", name, v.iter().map(|x| format!("{x:>10.1}")).collect::<String>());
+    }
+    println!("{:<22} {}", "windows", ns.iter().map(|x| format!("{x:>10}")).collect::<String>());
+    Ok(())
 }

@@ -105,9 +105,18 @@ impl Vocabulary {
         if !(self.fps > 0.0 && self.fps <= 1000.0) {
             return bad("fps", format!("{}; need (0, 1000]", self.fps));
         }
-        let sk = Skeleton::smpl13();
-        if self.skeleton != "smpl13" || self.joints != sk.names {
-            return bad("joints", "only the SMPL-13 joint list is supported".into());
+        match self.skeleton_def() {
+            Some(sk) if self.joints == sk.names => {}
+            _ => {
+                return bad(
+                    "joints",
+                    format!(
+                        "skeleton {:?} with {} joints: only SMPL-13 and SMPL-24 with their joint lists are supported",
+                        self.skeleton,
+                        self.joints.len()
+                    ),
+                )
+            }
         }
         for (name, r) in [
             ("velocity_range", self.velocity_range),
@@ -147,6 +156,23 @@ impl Vocabulary {
             .map_err(|e| MotionError::invalid(file, "vocabulary", e.to_string()))?;
         v.validate().map_err(|e| e.in_file(file))?;
         Ok(v)
+    }
+
+    /// The vocabulary's skeleton (`smpl13`, or `smpl24` for the thesis's
+    /// Table 4.5 comparison).
+    pub fn skeleton_def(&self) -> Option<Skeleton> {
+        match self.skeleton.as_str() {
+            "smpl13" => Some(Skeleton::smpl13()),
+            "smpl24" => Some(Skeleton::smpl24()),
+            _ => None,
+        }
+    }
+
+    /// The same layout on the full 24-joint SMPL skeleton.
+    pub fn with_smpl24(mut self) -> Vocabulary {
+        self.skeleton = "smpl24".into();
+        self.joints = Skeleton::smpl24().names;
+        self
     }
 
     /// Value slots a frame has (joints × 3 + 3).
@@ -320,7 +346,14 @@ impl Vocabulary {
     /// A motion in the token stream's form: SMPL-13 at the vocabulary's
     /// fps (retargeted and resampled as needed).
     pub fn prepare(&self, m: &Motion) -> Result<Motion, MotionError> {
-        let m13 = as_smpl13(m)?;
+        let m13 = if self.skeleton == "smpl24" {
+            match m.skeleton.kind.as_str() {
+                "smpl24" => m.clone(),
+                _ => as_smpl13(m)?.smpl13_to_smpl24()?,
+            }
+        } else {
+            as_smpl13(m)?
+        };
         if (m13.fps - self.fps).abs() > 1e-9 {
             m13.resample(self.fps)
         } else {
@@ -385,7 +418,9 @@ impl Vocabulary {
                 ),
             ));
         }
-        let sk = Skeleton::smpl13();
+        let sk = self
+            .skeleton_def()
+            .ok_or_else(|| MotionError::invalid(name, "vocabulary.skeleton", self.skeleton.clone()))?;
         let o = sk.offsets[0];
         let (ab, vb, hb) = (self.angle_bins(), self.velocity_bins(), self.height_bins());
         let nj = self.joints.len();
@@ -447,7 +482,9 @@ mod tests {
     /// 13-joint clip at 20 fps: the root walks 1 m/s along +x at 0.9 m, the
     /// left elbow swings.
     fn walk(frames: usize) -> Motion {
-        let sk = Skeleton::smpl13();
+        let sk = self
+            .skeleton_def()
+            .ok_or_else(|| MotionError::invalid(name, "vocabulary.skeleton", self.skeleton.clone()))?;
         let o = sk.offsets[0];
         let mut rots = vec![[0.0; 3]; frames * 13];
         for f in 0..frames {

@@ -1,0 +1,344 @@
+//! Generation and classification on a loaded model.
+//!
+//! [`Generator`] produces one frame (43 tokens) per call: prompt slots are
+//! forced from the caller's motion (thesis §4.6, Fig. 4.11), the rest are
+//! sampled from the model restricted to the tokens the slot allows.
+//! Consecutive forced tokens are fed in one step, and every step reuses the
+//! cached keys and values. When the window is full, the oldest half is
+//! dropped and the rest re-encoded (one step), so a stream can run for as
+//! long as the caller wants. One-shot generation and streaming call the same
+//! `next_frame`, so with one seed they give the same frames.
+
+use super::runtime::{Kv, LmSession};
+use super::{LmError, ModelConfig};
+use crate::motion::Labels;
+use crate::tokenize::vocab::Vocabulary;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use std::sync::Arc;
+
+/// How tokens are drawn: greedy when `temperature` is 0 (the thesis's
+/// choice), else softmax at `temperature`, keeping the `top_k` most likely
+/// (0 = all) and the smallest set reaching probability `top_p` (1 = all).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sampling {
+    pub temperature: f64,
+    pub top_k: usize,
+    pub top_p: f64,
+    pub seed: u64,
+}
+
+impl Default for Sampling {
+    fn default() -> Self {
+        Sampling {
+            temperature: 0.0,
+            top_k: 0,
+            top_p: 1.0,
+            seed: 0,
+        }
+    }
+}
+
+impl Sampling {
+    pub fn validate(&self) -> Result<(), LmError> {
+        if !(self.temperature.is_finite() && (0.0..=10.0).contains(&self.temperature)) {
+            return Err(LmError::invalid("request", "sampling.temperature", format!("{} (want 0 to 10; 0 = greedy)", self.temperature)));
+        }
+        if !(self.top_p > 0.0 && self.top_p <= 1.0) {
+            return Err(LmError::invalid("request", "sampling.top_p", format!("{} (want 0 < top_p ≤ 1)", self.top_p)));
+        }
+        Ok(())
+    }
+
+    /// Draws one index from `logits` (a slot's allowed range).
+    pub fn draw(&self, logits: &[f32], rng: &mut StdRng) -> usize {
+        let argmax = || {
+            logits
+                .iter()
+                .enumerate()
+                .fold((0, f32::NEG_INFINITY), |b, (i, &v)| if v > b.1 { (i, v) } else { b })
+                .0
+        };
+        if self.temperature == 0.0 {
+            return argmax();
+        }
+        let mut idx: Vec<usize> = (0..logits.len()).collect();
+        idx.sort_by(|&a, &b| logits[b].total_cmp(&logits[a]));
+        if self.top_k > 0 {
+            idx.truncate(self.top_k);
+        }
+        let t = self.temperature as f32;
+        let m = logits[idx[0]];
+        let w: Vec<f64> = idx.iter().map(|&i| (((logits[i] - m) / t) as f64).exp()).collect();
+        let z: f64 = w.iter().sum();
+        let mut keep = idx.len();
+        if self.top_p < 1.0 {
+            let mut acc = 0.0;
+            for (k, wi) in w.iter().enumerate() {
+                acc += wi / z;
+                if acc >= self.top_p {
+                    keep = k + 1;
+                    break;
+                }
+            }
+        }
+        let z: f64 = w[..keep].iter().sum();
+        let mut u = rng.gen::<f64>() * z;
+        for k in 0..keep {
+            u -= w[k];
+            if u <= 0.0 {
+                return idx[k];
+            }
+        }
+        idx[keep - 1]
+    }
+}
+
+/// Which of a frame's slots a joint prompt fixes: three per named joint;
+/// naming the root (`pelvis`) also fixes the root's velocity and height
+/// slots, so the prompt carries the path through space.
+pub fn prompt_slots(vocab: &Vocabulary, joints: &[String]) -> Result<Vec<bool>, LmError> {
+    let fl = vocab.frame_len();
+    let mut slots = vec![false; fl];
+    for name in joints {
+        let k = vocab
+            .joints
+            .iter()
+            .position(|j| j == name)
+            .ok_or_else(|| {
+                LmError::invalid(
+                    "request",
+                    "prompt.joints",
+                    format!("unknown joint {name:?} (the model's joints: {})", vocab.joints.join(", ")),
+                )
+            })?;
+        for s in 3 * k..3 * k + 3 {
+            slots[s] = true;
+        }
+        if k == 0 {
+            let nj = vocab.joints.len();
+            for s in 3 * nj..3 * nj + 3 {
+                slots[s] = true;
+            }
+        }
+    }
+    Ok(slots)
+}
+
+/// Frame tokens with the prompt's slots kept and the rest left free.
+pub fn forced_frames(tokens: &[u32], slots: &[bool]) -> Vec<Vec<Option<u32>>> {
+    tokens
+        .chunks_exact(slots.len())
+        .map(|f| f.iter().zip(slots).map(|(&t, &on)| on.then_some(t)).collect())
+        .collect()
+}
+
+/// A running generation: the model, the prefix, the frames in the window,
+/// the key/value cache and the random state.
+pub struct Generator {
+    session: Arc<LmSession>,
+    prefix: Vec<u32>,
+    /// Frame tokens in the current window (whole frames, fed or pending).
+    window: Vec<u32>,
+    /// Tokens at the end of `window` (or the prefix) not yet fed.
+    pending: usize,
+    prefix_pending: bool,
+    kv: Kv,
+    last_logits: Vec<f32>,
+    rng: StdRng,
+    sampling: Sampling,
+    /// Frames generated so far.
+    pub produced: usize,
+}
+
+impl Generator {
+    /// Starts from `<bos>` and the given labels (unknown kinds or values
+    /// are errors naming them), optionally continuing `seed_tokens` (whole
+    /// frames; only the last half-window is kept).
+    pub fn new(
+        session: Arc<LmSession>,
+        labels: &Labels,
+        seed_tokens: &[u32],
+        sampling: Sampling,
+    ) -> Result<Generator, LmError> {
+        sampling.validate()?;
+        let m = &session.manifest;
+        let cfg = &m.config;
+        for k in labels.keys() {
+            if !cfg.cond_kinds.contains(k) {
+                return Err(LmError::invalid("request", format!("labels.{k}"), format!("the model is not conditioned on {k:?} (it takes: {})", cfg.cond_kinds.join(", "))));
+            }
+        }
+        let prefix = m.vocabulary.prefix(labels).map_err(|e| match e {
+            crate::motion::MotionError::Invalid { field, reason, .. } => {
+                LmError::invalid("request", format!("labels ({field})"), reason)
+            }
+            other => LmError::Runtime(other.to_string()),
+        })?;
+        let fl = cfg.frame_len;
+        if seed_tokens.len() % fl != 0 {
+            return Err(LmError::invalid("request", "seed", "not whole frames"));
+        }
+        let keep = (cfg.max_frames / 2).max(1) * fl;
+        let window = seed_tokens[seed_tokens.len().saturating_sub(keep)..].to_vec();
+        let kv = Kv::empty(cfg);
+        Ok(Generator {
+            pending: window.len(),
+            window,
+            prefix,
+            prefix_pending: true,
+            kv,
+            last_logits: Vec::new(),
+            rng: StdRng::seed_from_u64(sampling.seed),
+            sampling,
+            session,
+            produced: 0,
+        })
+    }
+
+    fn cfg(&self) -> &ModelConfig {
+        &self.session.manifest.config
+    }
+
+    /// Feeds whatever is pending (prefix and/or frame tokens) in one step.
+    fn flush(&mut self) -> Result<(), LmError> {
+        let cfg = self.cfg().clone();
+        let pl = self.prefix.len();
+        let mut toks = Vec::new();
+        let mut pos = Vec::new();
+        if self.prefix_pending {
+            toks.extend_from_slice(&self.prefix);
+            pos.extend((0..pl).map(|i| cfg.prefix_pos(i)));
+        }
+        let start = self.window.len() - self.pending;
+        toks.extend_from_slice(&self.window[start..]);
+        pos.extend((start..self.window.len()).map(|j| cfg.frame_pos(pl, j)));
+        if toks.is_empty() {
+            return Ok(());
+        }
+        let kv = std::mem::replace(&mut self.kv, Kv::empty(&cfg));
+        let (out, kv) = self.session.step(&toks, &pos, kv)?;
+        self.kv = kv;
+        let v = cfg.vocab_size;
+        self.last_logits = out.logits[(toks.len() - 1) * v..].to_vec();
+        self.prefix_pending = false;
+        self.pending = 0;
+        Ok(())
+    }
+
+    /// Drops the oldest half of a full window and re-encodes the rest.
+    fn slide(&mut self) {
+        let cfg = self.cfg().clone();
+        let keep = (cfg.max_frames / 2).max(1) * cfg.frame_len;
+        let cut = self.window.len() - keep;
+        self.window.drain(..cut);
+        self.kv = Kv::empty(&cfg);
+        self.prefix_pending = true;
+        self.pending = self.window.len();
+    }
+
+    /// The next frame's 43 tokens. `forced[s]` fixes slot `s` (a joint
+    /// prompt); the separator is always forced. A forced token the slot
+    /// does not allow is an error naming the slot.
+    pub fn next_frame(&mut self, forced: &[Option<u32>]) -> Result<Vec<u32>, LmError> {
+        let fl = self.cfg().frame_len;
+        if forced.len() != fl {
+            return Err(LmError::invalid("request", "prompt", format!("{} slots, want {fl}", forced.len())));
+        }
+        if self.window.len() / fl >= self.cfg().max_frames {
+            self.slide();
+        }
+        let session = self.session.clone();
+        let vocab = &session.manifest.vocabulary;
+        let mut frame = Vec::with_capacity(fl);
+        for (s, f) in forced.iter().enumerate() {
+            let allowed = vocab.allowed(s);
+            let tok = match (s + 1 == fl, f) {
+                (true, _) => vocab.sep(),
+                (false, Some(t)) => {
+                    if !allowed.contains(t) {
+                        return Err(LmError::invalid("request", format!("prompt slot {s}"), format!("token {t} is not a value token")));
+                    }
+                    *t
+                }
+                (false, None) => {
+                    if self.pending > 0 || self.prefix_pending {
+                        self.flush()?;
+                    }
+                    let row = &self.last_logits[allowed.start as usize..allowed.end as usize];
+                    allowed.start + self.sampling.draw(row, &mut self.rng) as u32
+                }
+            };
+            frame.push(tok);
+            self.window.push(tok);
+            self.pending += 1;
+        }
+        self.produced += 1;
+        Ok(frame)
+    }
+}
+
+/// Class probabilities of a clip: windows of the model's length (half
+/// overlapping, at most `max_windows` spread evenly), each read through the
+/// class tokens at its end; probabilities averaged over windows. Returns,
+/// per kind in the model's order, (value, probability) sorted by
+/// probability.
+pub fn classify(
+    session: &LmSession,
+    frame_tokens: &[u32],
+    max_windows: usize,
+) -> Result<Vec<(String, Vec<(String, f64)>)>, LmError> {
+    let m = &session.manifest;
+    let cfg = &m.config;
+    let fl = cfg.frame_len;
+    if cfg.classes.is_empty() {
+        return Err(LmError::invalid("model", "classes", "this model has no class heads"));
+    }
+    let frames = frame_tokens.len() / fl;
+    if frames == 0 {
+        return Err(LmError::invalid("request", "motion", "no whole frame to classify"));
+    }
+    let w = cfg.max_frames.min(frames);
+    let hop = (w / 2).max(1);
+    let mut starts: Vec<usize> = (0..=frames - w).step_by(hop).collect();
+    if starts.len() > max_windows.max(1) {
+        let n = max_windows.max(1);
+        starts = (0..n).map(|i| i * (frames - w) / (n - 1).max(1)).collect();
+    }
+    let nk = cfg.classes.len();
+    let mut acc: Vec<Vec<f64>> = cfg.classes.iter().map(|(_, v)| vec![0.0; v.len()]).collect();
+    for &s0 in &starts {
+        let mut toks = vec![m.vocabulary.bos()];
+        toks.extend_from_slice(&frame_tokens[s0 * fl..(s0 + w) * fl]);
+        for (k, _) in &cfg.classes {
+            toks.push(m.vocabulary.class_token(k)?);
+        }
+        let pos = cfg.positions(1, w * fl, nk);
+        let (out, _) = session.step(&toks, &pos, Kv::empty(cfg))?;
+        for (c, (_, values)) in cfg.classes.iter().enumerate() {
+            let row = 1 + w * fl + c;
+            let n = values.len();
+            let l = &out.class_logits[c][row * n..(row + 1) * n];
+            let mx = l.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+            let e: Vec<f64> = l.iter().map(|&x| ((x - mx) as f64).exp()).collect();
+            let z: f64 = e.iter().sum();
+            for (a, p) in acc[c].iter_mut().zip(&e) {
+                *a += p / z;
+            }
+        }
+    }
+    Ok(cfg
+        .classes
+        .iter()
+        .zip(acc)
+        .map(|((k, values), a)| {
+            let mut v: Vec<(String, f64)> = values
+                .iter()
+                .cloned()
+                .zip(a.iter().map(|x| x / starts.len() as f64))
+                .collect();
+            v.sort_by(|x, y| y.1.total_cmp(&x.1));
+            (k.clone(), v)
+        })
+        .collect())
+}

@@ -1,0 +1,269 @@
+//! The GPT in candle: pre-LayerNorm blocks, GELU (erf form), learned
+//! positions (absolute or frame + slot), a language-model head and one
+//! linear class head per label kind. Built from composed tensor operations
+//! only, so every operation has a gradient and a one-to-one ONNX twin in
+//! `export.rs`.
+
+use crate::lm::ModelConfig;
+use candle_core::{DType, Device, Result, Tensor, Var, D};
+use std::collections::BTreeMap;
+
+/// Parameters by name (the names the exporter and checkpoints use).
+pub struct Gpt {
+    pub cfg: ModelConfig,
+    pub params: BTreeMap<String, Var>,
+    pub dropout: f32,
+}
+
+/// One layer's keys and values, `[B, H, S, dh]`.
+pub type KvPair = (Tensor, Tensor);
+
+fn normal(shape: &[usize], std: f64, dev: &Device) -> Result<Var> {
+    Var::from_tensor(&Tensor::randn(0f32, std as f32, shape, dev)?)
+}
+fn filled(shape: &[usize], v: f32, dev: &Device) -> Result<Var> {
+    Var::from_tensor(&(Tensor::ones(shape, DType::F32, dev)? * v as f64)?)
+}
+
+impl Gpt {
+    /// A freshly initialised model (N(0, 0.02) weights, residual
+    /// projections scaled by 1/√(2·layers), zero biases, unit norms).
+    pub fn new(cfg: ModelConfig, dropout: f32, dev: &Device) -> Result<Gpt> {
+        let (d, v, ff) = (cfg.d_model, cfg.vocab_size, cfg.d_ff);
+        let mut p = BTreeMap::new();
+        let resid = 0.02 / (2.0 * cfg.n_layers as f64).sqrt();
+        p.insert("tok_emb".into(), normal(&[v, d], 0.02, dev)?);
+        p.insert("pos_a".into(), normal(&[cfg.table_a(), d], 0.02, dev)?);
+        if cfg.table_b() > 0 {
+            p.insert("pos_b".into(), normal(&[cfg.table_b(), d], 0.02, dev)?);
+        }
+        for l in 0..cfg.n_layers {
+            let n = |s: &str| format!("h{l}.{s}");
+            p.insert(n("ln1.w"), filled(&[d], 1.0, dev)?);
+            p.insert(n("ln1.b"), filled(&[d], 0.0, dev)?);
+            for w in ["q", "k", "v"] {
+                p.insert(n(&format!("{w}.w")), normal(&[d, d], 0.02, dev)?);
+                p.insert(n(&format!("{w}.b")), filled(&[d], 0.0, dev)?);
+            }
+            p.insert(n("o.w"), normal(&[d, d], resid, dev)?);
+            p.insert(n("o.b"), filled(&[d], 0.0, dev)?);
+            p.insert(n("ln2.w"), filled(&[d], 1.0, dev)?);
+            p.insert(n("ln2.b"), filled(&[d], 0.0, dev)?);
+            p.insert(n("fc1.w"), normal(&[d, ff], 0.02, dev)?);
+            p.insert(n("fc1.b"), filled(&[ff], 0.0, dev)?);
+            p.insert(n("fc2.w"), normal(&[ff, d], resid, dev)?);
+            p.insert(n("fc2.b"), filled(&[d], 0.0, dev)?);
+        }
+        p.insert("ln_f.w".into(), filled(&[d], 1.0, dev)?);
+        p.insert("ln_f.b".into(), filled(&[d], 0.0, dev)?);
+        p.insert("head.w".into(), normal(&[d, v], 0.02, dev)?);
+        p.insert("head.b".into(), filled(&[v], 0.0, dev)?);
+        for (k, values) in &cfg.classes {
+            p.insert(format!("cls.{k}.w"), normal(&[d, values.len()], 0.02, dev)?);
+            p.insert(format!("cls.{k}.b"), filled(&[values.len()], 0.0, dev)?);
+        }
+        Ok(Gpt { cfg, params: p, dropout })
+    }
+
+    pub fn w(&self, name: &str) -> &Tensor {
+        self.params
+            .get(name)
+            .unwrap_or_else(|| panic!("parameter {name} exists"))
+            .as_tensor()
+    }
+
+    pub fn n_params(&self) -> usize {
+        self.params.values().map(|v| v.elem_count()).sum()
+    }
+
+    fn layer_norm(&self, x: &Tensor, pre: &str) -> Result<Tensor> {
+        let d = self.cfg.d_model as f64;
+        let mean = (x.sum_keepdim(D::Minus1)? / d)?;
+        let xc = x.broadcast_sub(&mean)?;
+        let var = (xc.sqr()?.sum_keepdim(D::Minus1)? / d)?;
+        let xn = xc.broadcast_div(&(var + self.cfg.ln_eps)?.sqrt()?)?;
+        xn.broadcast_mul(self.w(&format!("{pre}.w")))?
+            .broadcast_add(self.w(&format!("{pre}.b")))
+    }
+
+    fn linear(&self, x: &Tensor, pre: &str) -> Result<Tensor> {
+        x.broadcast_matmul(self.w(&format!("{pre}.w")))?
+            .broadcast_add(self.w(&format!("{pre}.b")))
+    }
+
+    fn drop(&self, x: Tensor, train: bool) -> Result<Tensor> {
+        if train && self.dropout > 0.0 {
+            candle_nn::ops::dropout(&x, self.dropout)
+        } else {
+            Ok(x)
+        }
+    }
+
+    /// The forward pass. `tokens`, `pos_a`, `pos_b`: `[B, T]` u32; `bias`:
+    /// additive attention bias broadcastable to `[B, H, T, S]` (S = past +
+    /// T); `past`: one (K, V) per layer or none. Returns logits
+    /// `[B, T, V]`, class logits per kind `[B, T, C]` and the extended
+    /// keys/values.
+    pub fn forward(
+        &self,
+        tokens: &Tensor,
+        pos_a: &Tensor,
+        pos_b: Option<&Tensor>,
+        bias: &Tensor,
+        past: Option<&[KvPair]>,
+        train: bool,
+    ) -> Result<(Tensor, Vec<Tensor>, Vec<KvPair>)> {
+        let cfg = &self.cfg;
+        let (b, t) = tokens.dims2()?;
+        let (d, h, dh) = (cfg.d_model, cfg.n_heads, cfg.d_head());
+        let emb = |table: &str, ids: &Tensor| -> Result<Tensor> {
+            self.w(table)
+                .index_select(&ids.flatten_all()?, 0)?
+                .reshape((b, t, d))
+        };
+        let mut x = (emb("tok_emb", tokens)? + emb("pos_a", pos_a)?)?;
+        if let Some(pb) = pos_b {
+            x = (x + emb("pos_b", pb)?)?;
+        }
+        x = self.drop(x, train)?;
+        let scale = 1.0 / (dh as f64).sqrt();
+        let mut present = Vec::with_capacity(cfg.n_layers);
+        for l in 0..cfg.n_layers {
+            let n = |s: &str| format!("h{l}.{s}");
+            let a = self.layer_norm(&x, &n("ln1"))?;
+            let heads = |w: &str| -> Result<Tensor> {
+                self.linear(&a, &n(w))?
+                    .reshape((b, t, h, dh))?
+                    .transpose(1, 2)?
+                    .contiguous()
+            };
+            let (q, mut k, mut v) = (heads("q")?, heads("k")?, heads("v")?);
+            if let Some(p) = past {
+                k = Tensor::cat(&[&p[l].0, &k], 2)?;
+                v = Tensor::cat(&[&p[l].1, &v], 2)?;
+            }
+            let scores = (q.matmul(&k.transpose(2, 3)?.contiguous()?)? * scale)?.broadcast_add(bias)?;
+            let mx = scores.max_keepdim(D::Minus1)?;
+            let e = scores.broadcast_sub(&mx)?.exp()?;
+            let probs = e.broadcast_div(&e.sum_keepdim(D::Minus1)?)?;
+            let probs = self.drop(probs, train)?;
+            let att = probs
+                .matmul(&v)?
+                .transpose(1, 2)?
+                .contiguous()?
+                .reshape((b, t, d))?;
+            let att = self.drop(self.linear(&att, &n("o"))?, train)?;
+            x = (x + att)?;
+            let m = self.layer_norm(&x, &n("ln2"))?;
+            let m = self.linear(&m, &n("fc1"))?.gelu_erf()?;
+            let m = self.drop(self.linear(&m, &n("fc2"))?, train)?;
+            x = (x + m)?;
+            present.push((k, v));
+        }
+        let x = self.layer_norm(&x, "ln_f")?;
+        let logits = self.linear(&x, "head")?;
+        let cls = cfg
+            .classes
+            .iter()
+            .map(|(k, _)| self.linear(&x, &format!("cls.{k}")))
+            .collect::<Result<Vec<_>>>()?;
+        Ok((logits, cls, present))
+    }
+
+    /// Parameters as named tensors (for checkpoints and export).
+    pub fn tensors(&self) -> BTreeMap<String, Tensor> {
+        self.params
+            .iter()
+            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
+            .collect()
+    }
+
+    /// Replaces parameters from named tensors; every parameter must be
+    /// present with its shape.
+    pub fn load_tensors(&mut self, t: &BTreeMap<String, Tensor>, file: &str) -> anyhow::Result<()> {
+        for (name, var) in &self.params {
+            let src = t
+                .get(name)
+                .ok_or_else(|| anyhow::anyhow!("{file}: field `{name}`: missing from the checkpoint"))?;
+            if src.dims() != var.dims() {
+                anyhow::bail!(
+                    "{file}: field `{name}`: shape {:?}, the configuration wants {:?}",
+                    src.dims(),
+                    var.dims()
+                );
+            }
+            var.set(&src.to_dtype(DType::F32)?)?;
+        }
+        Ok(())
+    }
+}
+
+/// AdamW with decoupled weight decay on matrices, bias-corrected moments,
+/// and global-norm gradient clipping. Its state is checkpointed.
+pub struct AdamW {
+    pub lr: f64,
+    pub beta1: f64,
+    pub beta2: f64,
+    pub eps: f64,
+    pub weight_decay: f64,
+    pub clip: f64,
+    pub step: usize,
+    pub m: BTreeMap<String, Tensor>,
+    pub v: BTreeMap<String, Tensor>,
+}
+
+impl AdamW {
+    pub fn new(lr: f64, weight_decay: f64) -> AdamW {
+        AdamW {
+            lr,
+            beta1: 0.9,
+            beta2: 0.95,
+            eps: 1e-8,
+            weight_decay,
+            clip: 1.0,
+            step: 0,
+            m: BTreeMap::new(),
+            v: BTreeMap::new(),
+        }
+    }
+
+    /// One update; returns the gradient norm before clipping.
+    pub fn step(&mut self, model: &Gpt, grads: &candle_core::backprop::GradStore) -> Result<f64> {
+        let mut sq = 0f64;
+        let mut gs = Vec::new();
+        for (name, var) in &model.params {
+            if let Some(g) = grads.get(var.as_tensor()) {
+                sq += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
+                gs.push((name, var, g.clone()));
+            }
+        }
+        let norm = sq.sqrt();
+        let factor = if norm > self.clip { self.clip / norm } else { 1.0 };
+        self.step += 1;
+        let (b1, b2) = (self.beta1, self.beta2);
+        let c1 = 1.0 - b1.powi(self.step as i32);
+        let c2 = 1.0 - b2.powi(self.step as i32);
+        for (name, var, g) in gs {
+            let g = (g * factor)?;
+            let m = match self.m.get(name) {
+                Some(m) => ((m * b1)? + (&g * (1.0 - b1))?)?,
+                None => (&g * (1.0 - b1))?,
+            };
+            let v = match self.v.get(name) {
+                Some(v) => ((v * b2)? + (g.sqr()? * (1.0 - b2))?)?,
+                None => (g.sqr()? * (1.0 - b2))?,
+            };
+            let upd = ((&m / c1)? / ((&v / c2)?.sqrt()? + self.eps)?)?;
+            let w = var.as_tensor();
+            let decay = var.rank() == 2 && !name.starts_with("pos_") && name != "tok_emb";
+            let mut next = (w - (upd * self.lr)?)?;
+            if decay && self.weight_decay > 0.0 {
+                next = (next - (w * (self.lr * self.weight_decay))?)?;
+            }
+            var.set(&next)?;
+            self.m.insert(name.clone(), m);
+            self.v.insert(name.clone(), v);
+        }
+        Ok(norm)
+    }
+}
