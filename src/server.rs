@@ -36,6 +36,11 @@ pub struct ServeConfig {
     /// Folders or files to ingest at start-up (skipped when already stored).
     #[arg(long, env = "CHOREO_INGEST", value_delimiter = ',')]
     pub ingest: Vec<PathBuf>,
+    /// The motion language model: a folder with manifest.json and
+    /// model.onnx (written by choreo-train). Missing folder = generate and
+    /// classify answer 503; a broken model stops start-up.
+    #[arg(long, env = "CHOREO_MODEL", default_value = "models/default")]
+    pub model: PathBuf,
 }
 
 /// A running server.
@@ -84,9 +89,35 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         );
     }
     let searcher = Searcher::open(store.clone(), HnswParams::default()).await?;
+    let model = if cfg.model.exists() {
+        let t0 = std::time::Instant::now();
+        let m = crate::lm::LmSession::load(&cfg.model)
+            .with_context(|| format!("--model {}", cfg.model.display()))?;
+        eprintln!(
+            "model {} loaded in {:.2} s ({} layers, d_model {}, classes: {})",
+            cfg.model.display(),
+            t0.elapsed().as_secs_f64(),
+            m.config().n_layers,
+            m.config().d_model,
+            m.config()
+                .classes
+                .iter()
+                .map(|c| c.0.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        Some(Arc::new(m))
+    } else {
+        eprintln!(
+            "no model at {}: generate and classify will answer 503 (set --model)",
+            cfg.model.display()
+        );
+        None
+    };
     let state = Arc::new(AppState {
         store,
         searcher,
+        model,
         workers: Arc::new(tokio::sync::Semaphore::new(cfg.workers.max(1))),
     });
     let max = cfg.max_body_mb.max(1) << 20;

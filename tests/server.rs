@@ -62,6 +62,7 @@ fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
         max_body_mb: 64,
         workers: 2,
         ingest,
+        model: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/default"),
     }
 }
 
@@ -246,5 +247,215 @@ async fn a_full_worker_pool_says_busy() {
     let (status, done) = first.await.unwrap();
     assert_eq!(status, 200, "{done}");
     assert_eq!(done["steps"], 3000);
+    running.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn generate_stream_duet_and_classify_with_the_bundled_model() {
+    let Some(aist) = require("aistpp/motions") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let running = start(&config(dir.path(), vec![])).await.unwrap();
+    let (h, g) = (running.http, running.grpc);
+    let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
+        .await
+        .unwrap();
+    let file = aist.join("gBR_sBM_cAll_d04_mBR2_ch08.pkl");
+    let bytes = std::fs::read(&file).unwrap();
+    let b64 = base64::engine::general_purpose::STANDARD.encode(&bytes);
+
+    // One-shot generation with a joint prompt, REST and gRPC, same request.
+    let req = json!({
+        "labels": {"genre": "BR"},
+        "frames": 24,
+        "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
+        "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
+        "sampling": {"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7}
+    });
+    let (status, rest) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
+            .await
+            .unwrap();
+    assert_eq!(status, 200, "{rest}");
+    let out = &rest["output"];
+    assert_eq!(out["translation"].as_array().unwrap().len(), 24);
+    assert_eq!(out["skeleton"], "smpl13");
+    let upload = pb::MotionSource {
+        source: Some(pb::motion_source::Source::File(pb::UploadedFile {
+            name: "gBR_sBM_cAll_d04_mBR2_ch08.pkl".into(),
+            content: bytes.clone(),
+        })),
+    };
+    let greq = pb::GenerateRequest {
+        labels: [("genre".to_string(), "BR".to_string())]
+            .into_iter()
+            .collect(),
+        frames: 24,
+        prompt: Some(upload.clone()),
+        prompt_joints: vec![
+            "pelvis".into(),
+            "right_shoulder".into(),
+            "right_elbow".into(),
+        ],
+        seed_motion: None,
+        sampling: Some(pb::Sampling {
+            temperature: 0.9,
+            top_k: 40,
+            top_p: 0.95,
+            seed: 7,
+        }),
+    };
+    let one = client.generate(greq.clone()).await.unwrap().into_inner();
+    let m = one.output.unwrap();
+    let rest_rot: Vec<f64> = out["rotations"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|f| {
+            f.as_array()
+                .unwrap()
+                .iter()
+                .flat_map(|j| j.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
+        })
+        .collect();
+    assert_eq!(
+        m.rotations, rest_rot,
+        "REST and gRPC generate the same frames"
+    );
+    assert!(m.rotations.iter().all(|x| x.is_finite()));
+
+    // Streaming gives the one-shot frames, one message each.
+    let mut stream = client.generate_stream(greq).await.unwrap().into_inner();
+    let mut frames = Vec::new();
+    while let Some(f) = stream.message().await.unwrap() {
+        frames.push(f);
+    }
+    assert_eq!(frames.len(), 24);
+    let streamed: Vec<f64> = frames.iter().flat_map(|f| f.rotations.clone()).collect();
+    assert_eq!(streamed, m.rotations, "stream equals one-shot");
+    let streamed_t: Vec<f64> = frames.iter().flat_map(|f| f.translation.clone()).collect();
+    assert_eq!(streamed_t, m.translation);
+
+    // A duet: the performer's right arm in, full bodies out, frame for frame.
+    let perf = choreo::motion::io::read_path(&file, &Default::default())
+        .unwrap()
+        .motion;
+    let perf = choreo::features::as_smpl13(&perf)
+        .unwrap()
+        .resample(20.0)
+        .unwrap();
+    let n = 10;
+    let mut msgs = Vec::new();
+    for f in 0..n {
+        msgs.push(pb::DuetRequest {
+            labels: if f == 0 {
+                [("genre".to_string(), "BR".to_string())]
+                    .into_iter()
+                    .collect()
+            } else {
+                Default::default()
+            },
+            prompt_joints: if f == 0 {
+                vec!["right_shoulder".into(), "right_elbow".into()]
+            } else {
+                vec![]
+            },
+            sampling: None,
+            frame: Some(pb::Motion {
+                fps: 20.0,
+                skeleton: "smpl13".into(),
+                rotations: perf
+                    .frame_rotations(f)
+                    .iter()
+                    .flat_map(|r| r.iter().copied())
+                    .collect(),
+                translation: perf.trans[f].to_vec(),
+                ..Default::default()
+            }),
+        });
+    }
+    let mut duet = client
+        .duet(tokio_stream::iter(msgs))
+        .await
+        .unwrap()
+        .into_inner();
+    let mut got = 0;
+    while let Some(f) = duet.message().await.unwrap() {
+        assert_eq!(f.index as usize, got);
+        assert_eq!(f.rotations.len(), 39);
+        got += 1;
+    }
+    assert_eq!(got, n);
+
+    // Classification over both transports.
+    let body = json!({"motion": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl",
+        "content_base64": base64::engine::general_purpose::STANDARD.encode(&bytes)}}});
+    let (status, rc) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/classify", Some(&body)))
+            .await
+            .unwrap();
+    assert_eq!(status, 200, "{rc}");
+    let gc = client
+        .classify(pb::ClassifyRequest {
+            motion: Some(upload),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let kinds = rc["classes"].as_array().unwrap();
+    assert_eq!(kinds.len(), gc.classes.len());
+    for (r, g) in kinds.iter().zip(&gc.classes) {
+        assert_eq!(r["kind"], g.kind.as_str());
+        assert_eq!(r["label"], g.label.as_str());
+        let total: f64 = g.scores.iter().map(|s| s.probability).sum();
+        assert!((total - 1.0).abs() < 1e-6);
+    }
+
+    // Error paths name the field.
+    let bad = json!({"labels": {"genre": "XX"}, "frames": 5});
+    let (status, err) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&bad)))
+            .await
+            .unwrap();
+    assert_eq!(status, 400, "{err}");
+    assert!(
+        err["error"]["field"].as_str().unwrap().contains("labels"),
+        "{err}"
+    );
+    let bad = json!({"frames": 100000});
+    let (status, err) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&bad)))
+            .await
+            .unwrap();
+    assert_eq!(
+        (status, err["error"]["field"].as_str()),
+        (400, Some("frames")),
+        "{err}"
+    );
+    let e = client
+        .generate(pb::GenerateRequest {
+            prompt_joints: vec!["tail".into()],
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::InvalidArgument);
+    running.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn without_a_model_generate_is_unavailable() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = config(dir.path(), vec![]);
+    cfg.model = dir.path().join("no-model-here");
+    let running = start(&cfg).await.unwrap();
+    let h = running.http;
+    let (status, err) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&json!({}))))
+            .await
+            .unwrap();
+    assert_eq!(status, 503, "{err}");
+    assert_eq!(err["error"]["code"], "unavailable");
     running.shutdown().await.unwrap();
 }

@@ -4,6 +4,7 @@
 use super::{ApiError, AppState, InterpolateParams, KeyframesParams, MotionInput, QueryParams};
 use crate::motion::Motion;
 use std::sync::Arc;
+use tokio_stream::StreamExt;
 use tonic::{Request, Response, Status};
 
 #[allow(clippy::all, missing_docs)]
@@ -61,12 +62,171 @@ pub fn motion_pb(m: &Motion) -> pb::Motion {
     }
 }
 
+fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
+    let s = s.unwrap_or_default();
+    crate::lm::Sampling {
+        temperature: s.temperature,
+        top_k: s.top_k as usize,
+        top_p: if s.top_p == 0.0 { 1.0 } else { s.top_p },
+        seed: s.seed,
+    }
+}
+
+fn generate_params(r: pb::GenerateRequest) -> Result<super::lm::GenerateParams, ApiError> {
+    Ok(super::lm::GenerateParams {
+        labels: r.labels.into_iter().collect(),
+        frames: r.frames as usize,
+        prompt: r.prompt.map(|p| source("prompt", Some(p))).transpose()?,
+        prompt_joints: r.prompt_joints,
+        seed_motion: r
+            .seed_motion
+            .map(|p| source("seed_motion", Some(p)))
+            .transpose()?,
+        sampling: sampling(r.sampling),
+    })
+}
+
+fn frame_pb(f: &super::lm::StreamFrame, skeleton: &str, fps: f64) -> pb::GeneratedFrame {
+    pb::GeneratedFrame {
+        index: f.index as u32,
+        rotations: f.rotations.iter().flat_map(|r| r.iter().copied()).collect(),
+        translation: f.translation.to_vec(),
+        latency_ms: f.latency_ms,
+        skeleton: skeleton.to_string(),
+        fps,
+    }
+}
+
+type FrameStream =
+    std::pin::Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::GeneratedFrame, Status>> + Send>>;
+
 pub struct ChoreoGrpc {
     pub state: Arc<AppState>,
 }
 
 #[tonic::async_trait]
 impl Choreo for ChoreoGrpc {
+    type GenerateStreamStream = FrameStream;
+    type DuetStream = FrameStream;
+
+    async fn generate(
+        &self,
+        req: Request<pb::GenerateRequest>,
+    ) -> Result<Response<pb::GenerateResponse>, Status> {
+        let p = generate_params(req.into_inner())?;
+        let (m, r) = super::lm::generate(&self.state, p).await?;
+        Ok(Response::new(pb::GenerateResponse {
+            output: Some(motion_pb(&m)),
+            frames: r.frames as u32,
+            seconds: r.seconds,
+            real_time_factor: r.real_time_factor,
+        }))
+    }
+
+    async fn generate_stream(
+        &self,
+        req: Request<pb::GenerateRequest>,
+    ) -> Result<Response<FrameStream>, Status> {
+        let p = generate_params(req.into_inner())?;
+        let (skeleton, fps, _) = super::lm::stream_format(&self.state)?;
+        let rx = super::lm::generate_stream(&self.state, p)?;
+        let out = tokio_stream::wrappers::ReceiverStream::new(rx).map(move |r| {
+            r.map(|f| frame_pb(&f, &skeleton, fps))
+                .map_err(Status::from)
+        });
+        Ok(Response::new(Box::pin(out)))
+    }
+
+    async fn duet(
+        &self,
+        req: Request<tonic::Streaming<pb::DuetRequest>>,
+    ) -> Result<Response<FrameStream>, Status> {
+        let mut inbound = req.into_inner();
+        let first = inbound.message().await?.ok_or_else(|| {
+            Status::invalid_argument("duet: the stream ended before its set-up message")
+        })?;
+        let (skeleton, fps, _) = super::lm::stream_format(&self.state)?;
+        let labels = first.labels.clone().into_iter().collect();
+        let mut session = super::lm::DuetSession::open(
+            &self.state,
+            &labels,
+            &first.prompt_joints,
+            sampling(first.sampling),
+        )?;
+        let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::GeneratedFrame, Status>>(64);
+        tokio::spawn(async move {
+            let mut pending = first.frame;
+            loop {
+                let frame = match pending.take() {
+                    Some(f) => f,
+                    None => match inbound.message().await {
+                        Ok(Some(m)) => match m.frame {
+                            Some(f) => f,
+                            None => continue,
+                        },
+                        Ok(None) | Err(_) => break,
+                    },
+                };
+                let motion = (|| {
+                    super::motion_from_parts(
+                        "frame",
+                        "duet",
+                        frame.fps,
+                        &frame.skeleton,
+                        triples("frame.rotations", &frame.rotations)?,
+                        triples("frame.translation", &frame.translation)?,
+                        Default::default(),
+                    )
+                })();
+                let out = match motion {
+                    Ok(m) => {
+                        let (s, r) = tokio::task::spawn_blocking(move || {
+                            let r = session.step(m);
+                            (session, r)
+                        })
+                        .await
+                        .expect("duet step does not panic");
+                        session = s;
+                        r
+                    }
+                    Err(e) => Err(e),
+                };
+                let msg = out
+                    .map(|f| frame_pb(&f, &skeleton, fps))
+                    .map_err(Status::from);
+                let failed = msg.is_err();
+                // A closed channel means the client left: stop.
+                if tx.send(msg).await.is_err() || failed {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+        )))
+    }
+
+    async fn classify(
+        &self,
+        req: Request<pb::ClassifyRequest>,
+    ) -> Result<Response<pb::ClassifyResponse>, Status> {
+        let r = req.into_inner();
+        let c = super::lm::classify(&self.state, source("motion", r.motion)?).await?;
+        Ok(Response::new(pb::ClassifyResponse {
+            classes: c
+                .into_iter()
+                .map(|(kind, v)| pb::KindScores {
+                    kind,
+                    label: v.first().map(|x| x.0.clone()).unwrap_or_default(),
+                    scores: v
+                        .into_iter()
+                        .map(|(label, probability)| pb::ClassScore { label, probability })
+                        .collect(),
+                })
+                .collect(),
+        }))
+    }
+
     async fn query(
         &self,
         req: Request<pb::QueryRequest>,

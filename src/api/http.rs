@@ -266,6 +266,92 @@ async fn list_motions(State(s): State<Arc<AppState>>) -> Result<Json<serde_json:
     Ok(Json(json!({ "motions": motions })))
 }
 
+/// Sampling settings as JSON (all optional: greedy by default).
+#[derive(Clone, Debug, Default, Deserialize)]
+pub struct SamplingJson {
+    #[serde(default)]
+    pub temperature: f64,
+    #[serde(default)]
+    pub top_k: usize,
+    pub top_p: Option<f64>,
+    #[serde(default)]
+    pub seed: u64,
+}
+
+impl SamplingJson {
+    pub fn to_sampling(&self) -> crate::lm::Sampling {
+        crate::lm::Sampling {
+            temperature: self.temperature,
+            top_k: self.top_k,
+            top_p: self.top_p.unwrap_or(1.0),
+            seed: self.seed,
+        }
+    }
+}
+
+#[derive(Deserialize)]
+pub struct GenerateBody {
+    #[serde(default)]
+    pub labels: Labels,
+    #[serde(default)]
+    pub frames: usize,
+    pub prompt: Option<SourceJson>,
+    #[serde(default)]
+    pub prompt_joints: Vec<String>,
+    pub seed_motion: Option<SourceJson>,
+    #[serde(default)]
+    pub sampling: SamplingJson,
+}
+
+async fn generate(
+    State(s): State<Arc<AppState>>,
+    b: Result<Json<GenerateBody>, JsonRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let b = body(b)?;
+    let p = super::lm::GenerateParams {
+        labels: b.labels,
+        frames: b.frames,
+        prompt: b.prompt.map(|x| source("prompt", Some(x))).transpose()?,
+        prompt_joints: b.prompt_joints,
+        seed_motion: b
+            .seed_motion
+            .map(|x| source("seed_motion", Some(x)))
+            .transpose()?,
+        sampling: b.sampling.to_sampling(),
+    };
+    let (m, r) = super::lm::generate(&s, p).await?;
+    Ok(Json(json!({
+        "output": MotionJson::from_motion(&m),
+        "frames": r.frames,
+        "seconds": r.seconds,
+        "real_time_factor": r.real_time_factor,
+    })))
+}
+
+#[derive(Deserialize)]
+pub struct ClassifyBody {
+    pub motion: Option<SourceJson>,
+}
+
+async fn classify(
+    State(s): State<Arc<AppState>>,
+    b: Result<Json<ClassifyBody>, JsonRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let b = body(b)?;
+    let c = super::lm::classify(&s, source("motion", b.motion)?).await?;
+    let kinds: Vec<serde_json::Value> = c
+        .iter()
+        .map(|(k, v)| {
+            json!({
+                "kind": k,
+                "label": v.first().map(|x| x.0.clone()),
+                "scores": v.iter().map(|(l, p)| json!({"label": l, "probability": p})).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    Ok(Json(json!({ "classes": kinds })))
+}
+
 /// The REST routes; `max_body` bytes per request.
 pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
     Router::new()
@@ -275,6 +361,8 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         .route("/v1/interpolate", post(interpolate))
         .route("/v1/lowpass", post(lowpass))
         .route("/v1/keyframes", post(keyframes))
+        .route("/v1/generate", post(generate))
+        .route("/v1/classify", post(classify))
         .route("/v1/motions", get(list_motions))
         .layer(DefaultBodyLimit::max(max_body))
         .with_state(state)

@@ -7,6 +7,7 @@
 
 pub mod grpc;
 pub mod http;
+pub mod lm;
 
 use crate::features::interpolate::{lowpass as lowpass_channels, to_f64, InterpolateOptions};
 use crate::features::{rows72, smpl24_at_60, Embedding};
@@ -37,6 +38,9 @@ pub enum ApiError {
     /// Every worker permit is taken: try again later.
     #[error("busy: {0}")]
     Busy(String),
+    /// The capability is not loaded (no model).
+    #[error("unavailable: {0}")]
+    Unavailable(String),
     #[error("internal error: {0}")]
     Internal(String),
 }
@@ -54,6 +58,7 @@ impl ApiError {
             ApiError::Invalid { .. } => 400,
             ApiError::NotFound(_) => 404,
             ApiError::Busy(_) => 429,
+            ApiError::Unavailable(_) => 503,
             ApiError::Internal(_) => 500,
         }
     }
@@ -63,6 +68,7 @@ impl ApiError {
             ApiError::Invalid { .. } => tonic::Code::InvalidArgument,
             ApiError::NotFound(_) => tonic::Code::NotFound,
             ApiError::Busy(_) => tonic::Code::ResourceExhausted,
+            ApiError::Unavailable(_) => tonic::Code::Unavailable,
             ApiError::Internal(_) => tonic::Code::Internal,
         }
     }
@@ -71,6 +77,7 @@ impl ApiError {
             ApiError::Invalid { .. } => "invalid_argument",
             ApiError::NotFound(_) => "not_found",
             ApiError::Busy(_) => "resource_exhausted",
+            ApiError::Unavailable(_) => "unavailable",
             ApiError::Internal(_) => "internal",
         }
     }
@@ -191,8 +198,11 @@ pub fn resolve(field: &str, input: MotionInput) -> Result<Motion, ApiError> {
 pub struct AppState {
     pub store: Store,
     pub searcher: Searcher,
-    /// Permits for CPU-heavy requests (interpolate, lowpass, keyframes).
+    /// Permits for CPU-heavy requests (interpolate, lowpass, keyframes,
+    /// generate, classify; a stream holds one for its whole life).
     pub workers: Arc<Semaphore>,
+    /// The motion language model, when one is installed.
+    pub model: Option<Arc<crate::lm::LmSession>>,
 }
 
 impl AppState {

@@ -42,10 +42,18 @@ impl Default for Sampling {
 impl Sampling {
     pub fn validate(&self) -> Result<(), LmError> {
         if !(self.temperature.is_finite() && (0.0..=10.0).contains(&self.temperature)) {
-            return Err(LmError::invalid("request", "sampling.temperature", format!("{} (want 0 to 10; 0 = greedy)", self.temperature)));
+            return Err(LmError::invalid(
+                "request",
+                "sampling.temperature",
+                format!("{} (want 0 to 10; 0 = greedy)", self.temperature),
+            ));
         }
         if !(self.top_p > 0.0 && self.top_p <= 1.0) {
-            return Err(LmError::invalid("request", "sampling.top_p", format!("{} (want 0 < top_p ≤ 1)", self.top_p)));
+            return Err(LmError::invalid(
+                "request",
+                "sampling.top_p",
+                format!("{} (want 0 < top_p ≤ 1)", self.top_p),
+            ));
         }
         Ok(())
     }
@@ -56,7 +64,10 @@ impl Sampling {
             logits
                 .iter()
                 .enumerate()
-                .fold((0, f32::NEG_INFINITY), |b, (i, &v)| if v > b.1 { (i, v) } else { b })
+                .fold(
+                    (0, f32::NEG_INFINITY),
+                    |b, (i, &v)| if v > b.1 { (i, v) } else { b },
+                )
                 .0
         };
         if self.temperature == 0.0 {
@@ -69,7 +80,10 @@ impl Sampling {
         }
         let t = self.temperature as f32;
         let m = logits[idx[0]];
-        let w: Vec<f64> = idx.iter().map(|&i| (((logits[i] - m) / t) as f64).exp()).collect();
+        let w: Vec<f64> = idx
+            .iter()
+            .map(|&i| (((logits[i] - m) / t) as f64).exp())
+            .collect();
         let z: f64 = w.iter().sum();
         let mut keep = idx.len();
         if self.top_p < 1.0 {
@@ -101,17 +115,16 @@ pub fn prompt_slots(vocab: &Vocabulary, joints: &[String]) -> Result<Vec<bool>, 
     let fl = vocab.frame_len();
     let mut slots = vec![false; fl];
     for name in joints {
-        let k = vocab
-            .joints
-            .iter()
-            .position(|j| j == name)
-            .ok_or_else(|| {
-                LmError::invalid(
-                    "request",
-                    "prompt.joints",
-                    format!("unknown joint {name:?} (the model's joints: {})", vocab.joints.join(", ")),
-                )
-            })?;
+        let k = vocab.joints.iter().position(|j| j == name).ok_or_else(|| {
+            LmError::invalid(
+                "request",
+                "prompt.joints",
+                format!(
+                    "unknown joint {name:?} (the model's joints: {})",
+                    vocab.joints.join(", ")
+                ),
+            )
+        })?;
         for s in 3 * k..3 * k + 3 {
             slots[s] = true;
         }
@@ -129,7 +142,12 @@ pub fn prompt_slots(vocab: &Vocabulary, joints: &[String]) -> Result<Vec<bool>, 
 pub fn forced_frames(tokens: &[u32], slots: &[bool]) -> Vec<Vec<Option<u32>>> {
     tokens
         .chunks_exact(slots.len())
-        .map(|f| f.iter().zip(slots).map(|(&t, &on)| on.then_some(t)).collect())
+        .map(|f| {
+            f.iter()
+                .zip(slots)
+                .map(|(&t, &on)| on.then_some(t))
+                .collect()
+        })
         .collect()
 }
 
@@ -166,7 +184,14 @@ impl Generator {
         let cfg = &m.config;
         for k in labels.keys() {
             if !cfg.cond_kinds.contains(k) {
-                return Err(LmError::invalid("request", format!("labels.{k}"), format!("the model is not conditioned on {k:?} (it takes: {})", cfg.cond_kinds.join(", "))));
+                return Err(LmError::invalid(
+                    "request",
+                    format!("labels.{k}"),
+                    format!(
+                        "the model is not conditioned on {k:?} (it takes: {})",
+                        cfg.cond_kinds.join(", ")
+                    ),
+                ));
             }
         }
         let prefix = m.vocabulary.prefix(labels).map_err(|e| match e {
@@ -243,7 +268,11 @@ impl Generator {
     pub fn next_frame(&mut self, forced: &[Option<u32>]) -> Result<Vec<u32>, LmError> {
         let fl = self.cfg().frame_len;
         if forced.len() != fl {
-            return Err(LmError::invalid("request", "prompt", format!("{} slots, want {fl}", forced.len())));
+            return Err(LmError::invalid(
+                "request",
+                "prompt",
+                format!("{} slots, want {fl}", forced.len()),
+            ));
         }
         if self.window.len() / fl >= self.cfg().max_frames {
             self.slide();
@@ -257,7 +286,11 @@ impl Generator {
                 (true, _) => vocab.sep(),
                 (false, Some(t)) => {
                     if !allowed.contains(t) {
-                        return Err(LmError::invalid("request", format!("prompt slot {s}"), format!("token {t} is not a value token")));
+                        return Err(LmError::invalid(
+                            "request",
+                            format!("prompt slot {s}"),
+                            format!("token {t} is not a value token"),
+                        ));
                     }
                     *t
                 }
@@ -278,6 +311,50 @@ impl Generator {
     }
 }
 
+/// Decodes a stream frame by frame exactly as
+/// [`Vocabulary::decode_motion`] decodes the whole: the root's ground
+/// position integrates the velocity slots from the second frame on.
+pub struct FrameDecoder {
+    x: f64,
+    z: f64,
+    frames: usize,
+}
+
+impl Default for FrameDecoder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl FrameDecoder {
+    pub fn new() -> FrameDecoder {
+        FrameDecoder {
+            x: 0.0,
+            z: 0.0,
+            frames: 0,
+        }
+    }
+    /// One frame: (rotations per joint, root translation).
+    pub fn decode(
+        &mut self,
+        vocab: &Vocabulary,
+        frame: &[u32],
+    ) -> Result<(Vec<[f64; 3]>, [f64; 3]), LmError> {
+        let one = vocab.decode_motion(frame, "generated")?;
+        if self.frames > 0 {
+            let (vx, vz) = vocab.decode_root_velocity(frame);
+            self.x += vx / vocab.fps;
+            self.z += vz / vocab.fps;
+        }
+        self.frames += 1;
+        let t = one.trans[0];
+        Ok((
+            one.frame_rotations(0).to_vec(),
+            [t[0] + self.x, t[1], t[2] + self.z],
+        ))
+    }
+}
+
 /// Class probabilities of a clip: windows of the model's length (half
 /// overlapping, at most `max_windows` spread evenly), each read through the
 /// class tokens at its end; probabilities averaged over windows. Returns,
@@ -292,11 +369,19 @@ pub fn classify(
     let cfg = &m.config;
     let fl = cfg.frame_len;
     if cfg.classes.is_empty() {
-        return Err(LmError::invalid("model", "classes", "this model has no class heads"));
+        return Err(LmError::invalid(
+            "model",
+            "classes",
+            "this model has no class heads",
+        ));
     }
     let frames = frame_tokens.len() / fl;
     if frames == 0 {
-        return Err(LmError::invalid("request", "motion", "no whole frame to classify"));
+        return Err(LmError::invalid(
+            "request",
+            "motion",
+            "no whole frame to classify",
+        ));
     }
     let w = cfg.max_frames.min(frames);
     let hop = (w / 2).max(1);
@@ -306,7 +391,11 @@ pub fn classify(
         starts = (0..n).map(|i| i * (frames - w) / (n - 1).max(1)).collect();
     }
     let nk = cfg.classes.len();
-    let mut acc: Vec<Vec<f64>> = cfg.classes.iter().map(|(_, v)| vec![0.0; v.len()]).collect();
+    let mut acc: Vec<Vec<f64>> = cfg
+        .classes
+        .iter()
+        .map(|(_, v)| vec![0.0; v.len()])
+        .collect();
     for &s0 in &starts {
         let mut toks = vec![m.vocabulary.bos()];
         toks.extend_from_slice(&frame_tokens[s0 * fl..(s0 + w) * fl]);

@@ -21,7 +21,7 @@ pub mod generate;
 pub mod manifest;
 pub mod runtime;
 
-pub use generate::{classify, forced_frames, prompt_slots, Generator, Sampling};
+pub use generate::{classify, forced_frames, prompt_slots, FrameDecoder, Generator, Sampling};
 pub use manifest::Manifest;
 pub use runtime::{Kv, LmSession};
 
@@ -191,7 +191,11 @@ pub enum LmError {
 }
 
 impl LmError {
-    pub fn invalid(file: impl Into<String>, field: impl Into<String>, reason: impl Into<String>) -> Self {
+    pub fn invalid(
+        file: impl Into<String>,
+        field: impl Into<String>,
+        reason: impl Into<String>,
+    ) -> Self {
         LmError::Invalid {
             file: file.into(),
             field: field.into(),
@@ -253,7 +257,9 @@ mod tests {
         assert_eq!(p[2 + 42], Pos { a: 1, b: 42 });
         assert_eq!(p[2 + 43], Pos { a: 2, b: 0 });
         assert_eq!(p[88], Pos { a: 0, b: 44 });
-        assert!(p.iter().all(|q| (q.a as usize) < c.table_a() && (q.b as usize) < c.table_b()));
+        assert!(p
+            .iter()
+            .all(|q| (q.a as usize) < c.table_a() && (q.b as usize) < c.table_b()));
         assert_eq!(c.block(), 3 + 4 * 43 + 1);
     }
 
@@ -261,7 +267,10 @@ mod tests {
     fn absolute_positions_are_indices() {
         let c = cfg(PosScheme::Absolute);
         let p = c.positions(3, 4 * 43, 1);
-        assert!(p.iter().enumerate().all(|(i, q)| q.a == i as i64 && q.b == 0));
+        assert!(p
+            .iter()
+            .enumerate()
+            .all(|(i, q)| q.a == i as i64 && q.b == 0));
         assert_eq!(p.len(), c.block());
     }
 

@@ -86,8 +86,9 @@ impl LmSession {
     /// the manifest.
     pub fn load(path: &Path) -> Result<LmSession, LmError> {
         let (manifest, onnx_path, bytes) = Manifest::load(path)?;
-        let plan = Self::plan(&manifest, &bytes)
-            .map_err(|e| LmError::invalid(onnx_path.display().to_string(), "graph", e.to_string()))?;
+        let plan = Self::plan(&manifest, &bytes).map_err(|e| {
+            LmError::invalid(onnx_path.display().to_string(), "graph", e.to_string())
+        })?;
         Ok(LmSession { manifest, plan })
     }
 
@@ -148,14 +149,29 @@ impl LmSession {
         let cfg = &self.manifest.config;
         let n = tokens.len();
         if n == 0 || pos.len() != n {
-            return Err(LmError::invalid("request", "tokens", format!("{n} tokens, {} positions", pos.len())));
+            return Err(LmError::invalid(
+                "request",
+                "tokens",
+                format!("{n} tokens, {} positions", pos.len()),
+            ));
         }
         if let Some(&bad) = tokens.iter().find(|&&t| t as usize >= cfg.vocab_size) {
-            return Err(LmError::invalid("request", "tokens", format!("id {bad} outside the vocabulary ({})", cfg.vocab_size)));
+            return Err(LmError::invalid(
+                "request",
+                "tokens",
+                format!("id {bad} outside the vocabulary ({})", cfg.vocab_size),
+            ));
         }
         let (ta, tb) = (cfg.table_a() as i64, cfg.table_b().max(1) as i64);
-        if let Some(q) = pos.iter().find(|q| q.a < 0 || q.a >= ta || q.b < 0 || q.b >= tb) {
-            return Err(LmError::invalid("request", "positions", format!("{q:?} outside the position tables ({ta}, {tb})")));
+        if let Some(q) = pos
+            .iter()
+            .find(|q| q.a < 0 || q.a >= ta || q.b < 0 || q.b >= tb)
+        {
+            return Err(LmError::invalid(
+                "request",
+                "positions",
+                format!("{q:?} outside the position tables ({ta}, {tb})"),
+            ));
         }
         let p = past.len;
         let s = p + n;
@@ -169,7 +185,11 @@ impl LmSession {
             inputs.push(Tensor::from_shape(&[1, n], &b).map_err(rt)?.into_tvalue());
         }
         let bias = attention_bias(cfg.objective, p, n);
-        inputs.push(Tensor::from_shape(&[n, s], &bias).map_err(rt)?.into_tvalue());
+        inputs.push(
+            Tensor::from_shape(&[n, s], &bias)
+                .map_err(rt)?
+                .into_tvalue(),
+        );
         for (k, v) in past.layers {
             inputs.push(k.into_tvalue());
             inputs.push(v.into_tvalue());
@@ -183,11 +203,21 @@ impl LmSession {
             layers.push((k.into_tensor(), v.into_tensor()));
         }
         let flat = |t: &TValue| -> Result<Vec<f32>, LmError> {
-            Ok(t.to_plain_array_view::<f32>().map_err(rt)?.iter().copied().collect())
+            Ok(t.to_plain_array_view::<f32>()
+                .map_err(rt)?
+                .iter()
+                .copied()
+                .collect())
         };
         let logits = flat(&out[0])?;
         let class_logits = out[1..1 + nk].iter().map(flat).collect::<Result<_, _>>()?;
-        Ok((StepOut { logits, class_logits }, Kv { layers, len: s }))
+        Ok((
+            StepOut {
+                logits,
+                class_logits,
+            },
+            Kv { layers, len: s },
+        ))
     }
 }
 

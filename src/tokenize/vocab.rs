@@ -390,6 +390,13 @@ impl Vocabulary {
         Ok(out)
     }
 
+    /// The root's ground-plane velocity (x, z, m/s) a frame's tokens carry.
+    pub fn decode_root_velocity(&self, frame: &[u32]) -> (f64, f64) {
+        let nj = self.joints.len();
+        let vb = self.velocity_bins();
+        (vb.decode(frame[3 * nj]), vb.decode(frame[3 * nj + 1]))
+    }
+
     /// Decode a token stream into a motion. A leading `<bos>` and
     /// conditioning / class tokens are skipped; then whole frames are read
     /// (a trailing partial frame is dropped). A frame whose value slots hold
@@ -418,9 +425,9 @@ impl Vocabulary {
                 ),
             ));
         }
-        let sk = self
-            .skeleton_def()
-            .ok_or_else(|| MotionError::invalid(name, "vocabulary.skeleton", self.skeleton.clone()))?;
+        let sk = self.skeleton_def().ok_or_else(|| {
+            MotionError::invalid(name, "vocabulary.skeleton", self.skeleton.clone())
+        })?;
         let o = sk.offsets[0];
         let (ab, vb, hb) = (self.angle_bins(), self.velocity_bins(), self.height_bins());
         let nj = self.joints.len();
@@ -482,9 +489,9 @@ mod tests {
     /// 13-joint clip at 20 fps: the root walks 1 m/s along +x at 0.9 m, the
     /// left elbow swings.
     fn walk(frames: usize) -> Motion {
-        let sk = self
-            .skeleton_def()
-            .ok_or_else(|| MotionError::invalid(name, "vocabulary.skeleton", self.skeleton.clone()))?;
+        let sk = self.skeleton_def().ok_or_else(|| {
+            MotionError::invalid(name, "vocabulary.skeleton", self.skeleton.clone())
+        })?;
         let o = sk.offsets[0];
         let mut rots = vec![[0.0; 3]; frames * 13];
         for f in 0..frames {

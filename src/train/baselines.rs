@@ -9,7 +9,12 @@ use crate::motion::Labels;
 /// Cross-entropy (nats per token) on the validation frame tokens of a
 /// unigram model fitted to the training frame tokens, add-one smoothed:
 /// one distribution for all slots, and one per slot.
-pub fn unigram_losses(train: &[Sequence], val: &[Sequence], vocab_size: usize, fl: usize) -> (f64, f64) {
+pub fn unigram_losses(
+    train: &[Sequence],
+    val: &[Sequence],
+    vocab_size: usize,
+    fl: usize,
+) -> (f64, f64) {
     let mut global = vec![1f64; vocab_size];
     let mut per_slot = vec![vec![1f64; vocab_size]; fl];
     for s in train {
@@ -42,7 +47,10 @@ pub fn window_features(frames: &[u32], fl: usize, bins: usize) -> Vec<f64> {
     for s in 0..nv {
         let mean = (0..n).map(|f| val(f, s)).sum::<f64>() / n as f64;
         let var = (0..n).map(|f| (val(f, s) - mean).powi(2)).sum::<f64>() / n as f64;
-        let dif = (1..n).map(|f| (val(f, s) - val(f - 1, s)).abs()).sum::<f64>() / (n.max(2) - 1) as f64;
+        let dif = (1..n)
+            .map(|f| (val(f, s) - val(f - 1, s)).abs())
+            .sum::<f64>()
+            / (n.max(2) - 1) as f64;
         out.extend([mean, var.sqrt(), dif]);
     }
     out
@@ -145,7 +153,10 @@ impl Lda {
             .zip(&self.offsets)
             .map(|(w, o)| w.iter().zip(x).map(|(a, b)| a * b).sum::<f64>() + o)
             .enumerate()
-            .fold((0, f64::NEG_INFINITY), |b, (i, s)| if s > b.1 { (i, s) } else { b })
+            .fold(
+                (0, f64::NEG_INFINITY),
+                |b, (i, s)| if s > b.1 { (i, s) } else { b },
+            )
             .0
     }
 }
@@ -170,7 +181,12 @@ pub fn classification_baselines(
     }
     let mut counts = vec![0usize; values.len()];
     y.iter().for_each(|&c| counts[c] += 1);
-    let major = counts.iter().enumerate().max_by_key(|c| c.1).map(|c| c.0).unwrap_or(0);
+    let major = counts
+        .iter()
+        .enumerate()
+        .max_by_key(|c| c.1)
+        .map(|c| c.0)
+        .unwrap_or(0);
     let lda = Lda::fit(&x, &y, values.len(), 0.1);
     let (mut m_hit, mut l_hit, mut n) = (0, 0, 0);
     for (f, l) in val {

@@ -69,7 +69,9 @@ fn licence(corpus: &str) -> &'static str {
 
 /// Reads every motion under the folders. Unreadable files are reported and
 /// skipped; an empty result is an error.
-pub fn read_motions(dirs: &[(String, PathBuf)]) -> Result<(Vec<(String, crate::motion::Motion)>, DataInfo)> {
+pub fn read_motions(
+    dirs: &[(String, PathBuf)],
+) -> Result<(Vec<(String, crate::motion::Motion)>, DataInfo)> {
     let mut motions = Vec::new();
     let mut listing = Vec::new();
     let mut info = DataInfo::default();
@@ -83,7 +85,10 @@ pub fn read_motions(dirs: &[(String, PathBuf)]) -> Result<(Vec<(String, crate::m
                         m.labels = from_name(&m.name);
                     }
                     let size = std::fs::metadata(&f).map(|m| m.len()).unwrap_or(0);
-                    listing.push(format!("{}\t{size}", f.strip_prefix(dir).unwrap_or(&f).display()));
+                    listing.push(format!(
+                        "{}\t{size}",
+                        f.strip_prefix(dir).unwrap_or(&f).display()
+                    ));
                     motions.push((corpus.clone(), m));
                 }
                 Err(e) => eprintln!("skipping {}: {e}", f.display()),
@@ -95,7 +100,10 @@ pub fn read_motions(dirs: &[(String, PathBuf)]) -> Result<(Vec<(String, crate::m
     if motions.is_empty() {
         bail!(
             "empty corpus: no readable motion under {}",
-            dirs.iter().map(|d| d.1.display().to_string()).collect::<Vec<_>>().join(", ")
+            dirs.iter()
+                .map(|d| d.1.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
         );
     }
     listing.sort();
@@ -105,7 +113,11 @@ pub fn read_motions(dirs: &[(String, PathBuf)]) -> Result<(Vec<(String, crate::m
 }
 
 /// The vocabulary for a set of motions: labels of the given kinds.
-pub fn vocabulary_for(motions: &[(String, crate::motion::Motion)], kinds: &[String], smpl24: bool) -> Vocabulary {
+pub fn vocabulary_for(
+    motions: &[(String, crate::motion::Motion)],
+    kinds: &[String],
+    smpl24: bool,
+) -> Vocabulary {
     let mut labels: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
     for (_, m) in motions {
         for k in kinds {
@@ -153,7 +165,13 @@ pub fn build(
             }
             let held = i < n_val;
             let mirrored = if mirror && !held {
-                match m.mirror().and_then(|mm| vocab.encode_motion(&mm)) {
+                // Mirrored on the vocabulary's skeleton (SMPL is symmetric; a BVH
+                // rest pose often is not).
+                match vocab
+                    .prepare(&m)
+                    .and_then(|p| p.mirror())
+                    .and_then(|mm| vocab.encode_motion(&mm))
+                {
                     Ok(t) => Some(t),
                     Err(e) => {
                         eprintln!("no mirror for {name}: {e}");
@@ -246,7 +264,11 @@ pub fn example(
     if as_classifier {
         for (ci, (k, values)) in cfg.classes.iter().enumerate() {
             let row = tokens.len();
-            tokens.push(vocab.class_token(k).expect("class kinds are in the vocabulary"));
+            tokens.push(
+                vocab
+                    .class_token(k)
+                    .expect("class kinds are in the vocabulary"),
+            );
             n_class += 1;
             if let Some(v) = labels.get(k) {
                 if let Some(idx) = values.iter().position(|x| x == v) {
@@ -298,10 +320,19 @@ pub struct Batch {
     pub t: usize,
 }
 
-pub fn batch(cfg: &ModelConfig, vocab: &Vocabulary, exs: &[Example], dev: &Device) -> Result<Batch> {
+pub fn batch(
+    cfg: &ModelConfig,
+    vocab: &Vocabulary,
+    exs: &[Example],
+    dev: &Device,
+) -> Result<Batch> {
     let b = exs.len();
     let t = exs.iter().map(|e| e.tokens.len()).max().unwrap_or(1);
-    let (mut tok, mut pa, mut pb) = (vec![vocab.pad(); b * t], vec![0u32; b * t], vec![0u32; b * t]);
+    let (mut tok, mut pa, mut pb) = (
+        vec![vocab.pad(); b * t],
+        vec![0u32; b * t],
+        vec![0u32; b * t],
+    );
     let (mut tg, mut w) = (vec![0u32; b * t], vec![0f32; b * t]);
     let mut bias = vec![0f32; b * t * t];
     let mut cls: Vec<(Vec<u32>, Vec<u32>)> = vec![(Vec::new(), Vec::new()); cfg.classes.len()];
@@ -342,7 +373,10 @@ pub fn batch(cfg: &ModelConfig, vocab: &Vocabulary, exs: &[Example], dev: &Devic
                 return Ok(None);
             }
             let n = rows.len();
-            Ok(Some((Tensor::from_vec(rows, n, dev)?, Tensor::from_vec(idx, n, dev)?)))
+            Ok(Some((
+                Tensor::from_vec(rows, n, dev)?,
+                Tensor::from_vec(idx, n, dev)?,
+            )))
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(Batch {
@@ -364,7 +398,13 @@ pub fn batch(cfg: &ModelConfig, vocab: &Vocabulary, exs: &[Example], dev: &Devic
 
 /// Draws a training window: a sequence (weighted by length), possibly its
 /// mirror, and a start frame.
-pub fn draw_window<'a>(train: &'a [Sequence], cum: &[usize], fl: usize, frames: usize, rng: &mut StdRng) -> (&'a [u32], &'a Labels) {
+pub fn draw_window<'a>(
+    train: &'a [Sequence],
+    cum: &[usize],
+    fl: usize,
+    frames: usize,
+    rng: &mut StdRng,
+) -> (&'a [u32], &'a Labels) {
     let total = *cum.last().expect("non-empty");
     let r = rng.gen_range(0..total);
     let i = cum.partition_point(|&c| c <= r);

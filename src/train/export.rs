@@ -78,9 +78,17 @@ pub fn value_info(name: &str, elem: DataType, dims: &[&str]) -> ValueInfoProto {
 
 impl Builder {
     /// Adds a node; returns its output's name (`out` or a fresh one).
-    fn op(&mut self, op: &str, inputs: &[&str], attrs: Vec<AttributeProto>, out: Option<&str>) -> String {
+    fn op(
+        &mut self,
+        op: &str,
+        inputs: &[&str],
+        attrs: Vec<AttributeProto>,
+        out: Option<&str>,
+    ) -> String {
         self.count += 1;
-        let o = out.map(str::to_string).unwrap_or_else(|| format!("{}_{}", op.to_lowercase(), self.count));
+        let o = out
+            .map(str::to_string)
+            .unwrap_or_else(|| format!("{}_{}", op.to_lowercase(), self.count));
         self.nodes.push(NodeProto {
             input: inputs.iter().map(|s| s.to_string()).collect(),
             output: vec![o.clone()],
@@ -143,11 +151,26 @@ pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
     let inv_sqrt2 = g.scalar("inv_sqrt2", std::f32::consts::FRAC_1_SQRT_2);
     let eps = cfg.ln_eps as f32;
 
-    let tok = g.op("Gather", &["tok_emb", "tokens"], vec![attr_i("axis", 0)], None);
-    let pa = g.op("Gather", &["pos_a", "pos_a_ids"], vec![attr_i("axis", 0)], None);
+    let tok = g.op(
+        "Gather",
+        &["tok_emb", "tokens"],
+        vec![attr_i("axis", 0)],
+        None,
+    );
+    let pa = g.op(
+        "Gather",
+        &["pos_a", "pos_a_ids"],
+        vec![attr_i("axis", 0)],
+        None,
+    );
     let mut x = g.op("Add", &[&tok, &pa], vec![], None);
     if cfg.positions == PosScheme::FrameSlot {
-        let pb = g.op("Gather", &["pos_b", "pos_b_ids"], vec![attr_i("axis", 0)], None);
+        let pb = g.op(
+            "Gather",
+            &["pos_b", "pos_b_ids"],
+            vec![attr_i("axis", 0)],
+            None,
+        );
         x = g.op("Add", &[&x, &pb], vec![], None);
     }
     let ln = |g: &mut Builder, x: &str, pre: &str| {
@@ -168,22 +191,47 @@ pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
         let heads = |g: &mut Builder, which: &str| {
             let y = lin(g, &a, &n(which));
             let y = g.op("Reshape", &[&y, &shape_heads], vec![], None);
-            g.op("Transpose", &[&y], vec![attr_ints("perm", &[0, 2, 1, 3])], None)
+            g.op(
+                "Transpose",
+                &[&y],
+                vec![attr_ints("perm", &[0, 2, 1, 3])],
+                None,
+            )
         };
         let q = heads(&mut g, "q");
         let k = heads(&mut g, "k");
         let v = heads(&mut g, "v");
         let pk = format!("present_k_{l}");
         let pv = format!("present_v_{l}");
-        g.op("Concat", &[&format!("past_k_{l}"), &k], vec![attr_i("axis", 2)], Some(&pk));
-        g.op("Concat", &[&format!("past_v_{l}"), &v], vec![attr_i("axis", 2)], Some(&pv));
-        let kt = g.op("Transpose", &[&pk], vec![attr_ints("perm", &[0, 1, 3, 2])], None);
+        g.op(
+            "Concat",
+            &[&format!("past_k_{l}"), &k],
+            vec![attr_i("axis", 2)],
+            Some(&pk),
+        );
+        g.op(
+            "Concat",
+            &[&format!("past_v_{l}"), &v],
+            vec![attr_i("axis", 2)],
+            Some(&pv),
+        );
+        let kt = g.op(
+            "Transpose",
+            &[&pk],
+            vec![attr_ints("perm", &[0, 1, 3, 2])],
+            None,
+        );
         let s = g.op("MatMul", &[&q, &kt], vec![], None);
         let s = g.op("Mul", &[&s, &scale], vec![], None);
         let s = g.op("Add", &[&s, "attn_bias"], vec![], None);
         let p = g.op("Softmax", &[&s], vec![attr_i("axis", -1)], None);
         let att = g.op("MatMul", &[&p, &pv], vec![], None);
-        let att = g.op("Transpose", &[&att], vec![attr_ints("perm", &[0, 2, 1, 3])], None);
+        let att = g.op(
+            "Transpose",
+            &[&att],
+            vec![attr_ints("perm", &[0, 2, 1, 3])],
+            None,
+        );
         let att = g.op("Reshape", &[&att, &shape_model], vec![], None);
         let o = lin(&mut g, &att, &n("o"));
         x = g.op("Add", &[&x, &o], vec![], None);
@@ -202,7 +250,12 @@ pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
     g.op("Add", &[&m, "head.b"], vec![], Some("logits"));
     for (k, _) in &cfg.classes {
         let m = g.op("MatMul", &[&xf, &format!("cls.{k}.w")], vec![], None);
-        g.op("Add", &[&m, &format!("cls.{k}.b")], vec![], Some(&format!("cls_{k}")));
+        g.op(
+            "Add",
+            &[&m, &format!("cls.{k}.b")],
+            vec![],
+            Some(&format!("cls_{k}")),
+        );
     }
 
     // Graph inputs are the runtime's names (`pos_a_ids` index the table
@@ -213,19 +266,36 @@ pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
             "tokens" => value_info("tokens", DataType::Int64, &["B", "T"]),
             "pos_a_ids" | "pos_b_ids" => value_info(&name, DataType::Int64, &["B", "T"]),
             "attn_bias" => value_info("attn_bias", DataType::Float, &["T", "S"]),
-            other => value_info(other, DataType::Float, &["B", &h.to_string(), "P", &dh.to_string()]),
+            other => value_info(
+                other,
+                DataType::Float,
+                &["B", &h.to_string(), "P", &dh.to_string()],
+            ),
         };
         inputs.push(vi);
     }
     let mut outputs = Vec::new();
     for name in output_names(cfg) {
         let vi = if name == "logits" {
-            value_info("logits", DataType::Float, &["B", "T", &cfg.vocab_size.to_string()])
+            value_info(
+                "logits",
+                DataType::Float,
+                &["B", "T", &cfg.vocab_size.to_string()],
+            )
         } else if let Some(k) = name.strip_prefix("cls_") {
-            let c = cfg.classes.iter().find(|(kk, _)| kk == k).map(|c| c.1.len()).unwrap_or(0);
+            let c = cfg
+                .classes
+                .iter()
+                .find(|(kk, _)| kk == k)
+                .map(|c| c.1.len())
+                .unwrap_or(0);
             value_info(&name, DataType::Float, &["B", "T", &c.to_string()])
         } else {
-            value_info(&name, DataType::Float, &["B", &h.to_string(), "S", &dh.to_string()])
+            value_info(
+                &name,
+                DataType::Float,
+                &["B", &h.to_string(), "S", &dh.to_string()],
+            )
         };
         outputs.push(vi);
     }

@@ -69,7 +69,12 @@ pub struct CheckpointState {
 pub const CKPT_JSON: &str = "checkpoint.json";
 pub const CKPT_WEIGHTS: &str = "checkpoint.safetensors";
 
-pub fn save_checkpoint(dir: &Path, model: &Gpt, opt: &AdamW, state: &CheckpointState) -> Result<()> {
+pub fn save_checkpoint(
+    dir: &Path,
+    model: &Gpt,
+    opt: &AdamW,
+    state: &CheckpointState,
+) -> Result<()> {
     std::fs::create_dir_all(dir)?;
     let mut t: HashMap<String, Tensor> = model.tensors().into_iter().collect();
     for (k, m) in &opt.m {
@@ -92,7 +97,8 @@ pub fn save_checkpoint(dir: &Path, model: &Gpt, opt: &AdamW, state: &CheckpointS
 /// Missing or corrupt files are errors naming them.
 pub fn load_checkpoint(dir: &Path, dev: &Device) -> Result<(CheckpointState, Gpt, AdamW)> {
     let jp = dir.join(CKPT_JSON);
-    let text = std::fs::read_to_string(&jp).with_context(|| format!("{}: cannot read", jp.display()))?;
+    let text =
+        std::fs::read_to_string(&jp).with_context(|| format!("{}: cannot read", jp.display()))?;
     let state: CheckpointState = serde_json::from_str(&text)
         .map_err(|e| anyhow::anyhow!("{}: field `json`: {e}", jp.display()))?;
     state
@@ -100,8 +106,12 @@ pub fn load_checkpoint(dir: &Path, dev: &Device) -> Result<(CheckpointState, Gpt
         .validate(&jp.display().to_string())
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let wp = dir.join(CKPT_WEIGHTS);
-    let t = candle_core::safetensors::load(&wp, dev)
-        .map_err(|e| anyhow::anyhow!("{}: not a readable safetensors checkpoint: {e}", wp.display()))?;
+    let t = candle_core::safetensors::load(&wp, dev).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: not a readable safetensors checkpoint: {e}",
+            wp.display()
+        )
+    })?;
     let t: BTreeMap<String, Tensor> = t.into_iter().collect();
     let mut model = Gpt::new(state.config.clone(), state.settings.dropout, dev)?;
     model.load_tensors(&t, &wp.display().to_string())?;
@@ -119,9 +129,14 @@ pub fn load_checkpoint(dir: &Path, dev: &Device) -> Result<(CheckpointState, Gpt
 
 /// Mean losses of a batch: language model (nats per target token) and
 /// classification (summed over kinds, or None), plus class hits/totals.
-pub fn losses(model: &Gpt, b: &Batch, train: bool) -> Result<(Tensor, Option<Tensor>, Vec<(usize, usize)>)> {
+pub fn losses(
+    model: &Gpt,
+    b: &Batch,
+    train: bool,
+) -> Result<(Tensor, Option<Tensor>, Vec<(usize, usize)>)> {
     let cfg = &model.cfg;
-    let (logits, cls, _) = model.forward(&b.tokens, &b.pos_a, b.pos_b.as_ref(), &b.bias, None, train)?;
+    let (logits, cls, _) =
+        model.forward(&b.tokens, &b.pos_a, b.pos_b.as_ref(), &b.bias, None, train)?;
     let n = logits.dims3()?.0 * b.t;
     let lsm = candle_nn::ops::log_softmax(&logits.reshape((n, cfg.vocab_size))?, D::Minus1)?;
     let picked = lsm.gather(&b.targets.unsqueeze(1)?, 1)?.squeeze(1)?;
@@ -136,7 +151,10 @@ pub fn losses(model: &Gpt, b: &Batch, train: bool) -> Result<(Tensor, Option<Ten
         let x = cls[c].reshape((n, values.len()))?.index_select(rows, 0)?;
         let pred = x.argmax(D::Minus1)?.to_vec1::<u32>()?;
         let truth = idx.to_vec1::<u32>()?;
-        hits.push((pred.iter().zip(&truth).filter(|(a, b)| a == b).count(), truth.len()));
+        hits.push((
+            pred.iter().zip(&truth).filter(|(a, b)| a == b).count(),
+            truth.len(),
+        ));
         let l = candle_nn::ops::log_softmax(&x, D::Minus1)?
             .gather(&idx.unsqueeze(1)?, 1)?
             .mean_all()?
@@ -151,16 +169,31 @@ pub fn losses(model: &Gpt, b: &Batch, train: bool) -> Result<(Tensor, Option<Ten
 
 /// Held-out figures over fixed windows: mean loss per target token,
 /// bits/frame and (for class heads) accuracy per kind.
+pub const EVAL_WINDOWS: usize = 384;
+
 pub struct Evaluation {
     pub loss: f64,
     pub bits_per_frame: f64,
     pub accuracy: Vec<(String, f64, usize)>,
 }
 
-pub fn evaluate(model: &Gpt, vocab: &Vocabulary, corpus: &Corpus, batch: usize, dev: &Device) -> Result<Evaluation> {
+pub fn evaluate(
+    model: &Gpt,
+    vocab: &Vocabulary,
+    corpus: &Corpus,
+    batch: usize,
+    dev: &Device,
+) -> Result<Evaluation> {
     let cfg = &model.cfg;
     let fl = cfg.frame_len;
-    let windows = data::eval_windows(&corpus.val, fl, cfg.max_frames);
+    let mut windows = data::eval_windows(&corpus.val, fl, cfg.max_frames);
+    // A fixed, evenly spread subset keeps evaluation cheap and comparable.
+    if windows.len() > EVAL_WINDOWS {
+        let n = windows.len();
+        windows = (0..EVAL_WINDOWS)
+            .map(|i| windows[i * n / EVAL_WINDOWS])
+            .collect();
+    }
     if windows.is_empty() {
         bail!("no validation windows (the split held out nothing)");
     }
@@ -250,7 +283,10 @@ pub fn train_step(
     };
     let loss = lm.to_scalar::<f32>()? as f64;
     if !loss.is_finite() {
-        bail!("training diverged: loss {loss} at step {} (lower --lr)", opt.step);
+        bail!(
+            "training diverged: loss {loss} at step {} (lower --lr)",
+            opt.step
+        );
     }
     let grads = total.backward()?;
     opt.step(model, &grads)?;

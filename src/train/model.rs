@@ -62,7 +62,11 @@ impl Gpt {
             p.insert(format!("cls.{k}.w"), normal(&[d, values.len()], 0.02, dev)?);
             p.insert(format!("cls.{k}.b"), filled(&[values.len()], 0.0, dev)?);
         }
-        Ok(Gpt { cfg, params: p, dropout })
+        Ok(Gpt {
+            cfg,
+            params: p,
+            dropout,
+        })
     }
 
     pub fn w(&self, name: &str) -> &Tensor {
@@ -142,7 +146,8 @@ impl Gpt {
                 k = Tensor::cat(&[&p[l].0, &k], 2)?;
                 v = Tensor::cat(&[&p[l].1, &v], 2)?;
             }
-            let scores = (q.matmul(&k.transpose(2, 3)?.contiguous()?)? * scale)?.broadcast_add(bias)?;
+            let scores =
+                (q.matmul(&k.transpose(2, 3)?.contiguous()?)? * scale)?.broadcast_add(bias)?;
             let mx = scores.max_keepdim(D::Minus1)?;
             let e = scores.broadcast_sub(&mx)?.exp()?;
             let probs = e.broadcast_div(&e.sum_keepdim(D::Minus1)?)?;
@@ -182,9 +187,9 @@ impl Gpt {
     /// present with its shape.
     pub fn load_tensors(&mut self, t: &BTreeMap<String, Tensor>, file: &str) -> anyhow::Result<()> {
         for (name, var) in &self.params {
-            let src = t
-                .get(name)
-                .ok_or_else(|| anyhow::anyhow!("{file}: field `{name}`: missing from the checkpoint"))?;
+            let src = t.get(name).ok_or_else(|| {
+                anyhow::anyhow!("{file}: field `{name}`: missing from the checkpoint")
+            })?;
             if src.dims() != var.dims() {
                 anyhow::bail!(
                     "{file}: field `{name}`: shape {:?}, the configuration wants {:?}",
@@ -234,11 +239,16 @@ impl AdamW {
         for (name, var) in &model.params {
             if let Some(g) = grads.get(var.as_tensor()) {
                 sq += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
-                gs.push((name, var, g.clone()));
+                // Detached: a gradient keeps its step's graph alive otherwise.
+                gs.push((name, var, g.detach()));
             }
         }
         let norm = sq.sqrt();
-        let factor = if norm > self.clip { self.clip / norm } else { 1.0 };
+        let factor = if norm > self.clip {
+            self.clip / norm
+        } else {
+            1.0
+        };
         self.step += 1;
         let (b1, b2) = (self.beta1, self.beta2);
         let c1 = 1.0 - b1.powi(self.step as i32);
@@ -260,9 +270,9 @@ impl AdamW {
             if decay && self.weight_decay > 0.0 {
                 next = (next - (w * (self.lr * self.weight_decay))?)?;
             }
-            var.set(&next)?;
-            self.m.insert(name.clone(), m);
-            self.v.insert(name.clone(), v);
+            var.set(&next.detach())?;
+            self.m.insert(name.clone(), m.detach());
+            self.v.insert(name.clone(), v.detach());
         }
         Ok(norm)
     }

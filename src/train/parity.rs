@@ -34,7 +34,11 @@ impl std::fmt::Display for ParityReport {
 
 /// A random valid sequence: `<bos>`, the first value of each conditioning
 /// kind, two frames of random value tokens, class tokens.
-pub fn sample_sequence(model: &Gpt, vocab: &Vocabulary, seed: u64) -> (Vec<u32>, usize, usize, usize) {
+pub fn sample_sequence(
+    model: &Gpt,
+    vocab: &Vocabulary,
+    seed: u64,
+) -> (Vec<u32>, usize, usize, usize) {
     let cfg = &model.cfg;
     let mut rng = StdRng::seed_from_u64(seed);
     let mut toks = vec![vocab.bos()];
@@ -48,7 +52,11 @@ pub fn sample_sequence(model: &Gpt, vocab: &Vocabulary, seed: u64) -> (Vec<u32>,
     for _ in 0..frames {
         for s in 0..cfg.frame_len {
             let r = vocab.allowed(s);
-            toks.push(if r.len() == 1 { r.start } else { rng.gen_range(r) });
+            toks.push(if r.len() == 1 {
+                r.start
+            } else {
+                rng.gen_range(r)
+            });
         }
     }
     let nf = frames * cfg.frame_len;
@@ -58,17 +66,37 @@ pub fn sample_sequence(model: &Gpt, vocab: &Vocabulary, seed: u64) -> (Vec<u32>,
     (toks, pl, nf, cfg.classes.len())
 }
 
-pub fn check(model: &Gpt, vocab: &Vocabulary, export_dir: &Path, seed: u64) -> Result<ParityReport> {
+pub fn check(
+    model: &Gpt,
+    vocab: &Vocabulary,
+    export_dir: &Path,
+    seed: u64,
+) -> Result<ParityReport> {
     let cfg = &model.cfg;
     let (toks, pl, nf, nc) = sample_sequence(model, vocab, seed);
     let pos = cfg.positions(pl, nf, nc);
     let n = toks.len();
     let dev = Device::Cpu;
     let t = Tensor::from_vec(toks.clone(), (1, n), &dev)?;
-    let pa = Tensor::from_vec(pos.iter().map(|p| p.a as u32).collect::<Vec<_>>(), (1, n), &dev)?;
-    let pb = Tensor::from_vec(pos.iter().map(|p| p.b as u32).collect::<Vec<_>>(), (1, n), &dev)?;
+    let pa = Tensor::from_vec(
+        pos.iter().map(|p| p.a as u32).collect::<Vec<_>>(),
+        (1, n),
+        &dev,
+    )?;
+    let pb = Tensor::from_vec(
+        pos.iter().map(|p| p.b as u32).collect::<Vec<_>>(),
+        (1, n),
+        &dev,
+    )?;
     let bias = Tensor::from_vec(attention_bias(cfg.objective, 0, n), (1, 1, n, n), &dev)?;
-    let (logits, cls, _) = model.forward(&t, &pa, (cfg.table_b() > 0).then_some(&pb), &bias, None, false)?;
+    let (logits, cls, _) = model.forward(
+        &t,
+        &pa,
+        (cfg.table_b() > 0).then_some(&pb),
+        &bias,
+        None,
+        false,
+    )?;
     let want: Vec<f32> = logits.flatten_all()?.to_vec1()?;
     let want_cls: Vec<Vec<f32>> = cls
         .iter()
@@ -77,7 +105,12 @@ pub fn check(model: &Gpt, vocab: &Vocabulary, export_dir: &Path, seed: u64) -> R
 
     let session = LmSession::load(export_dir)?;
     let (whole, _) = session.step(&toks, &pos, Kv::empty(cfg))?;
-    let diff = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+    let diff = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0f32, f32::max)
+    };
     let d_whole = diff(&whole.logits, &want);
     let d_cls = whole
         .class_logits

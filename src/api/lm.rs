@@ -1,0 +1,351 @@
+//! Generate, stream, duet and classify: the language-model operations both
+//! transports call.
+
+use super::{resolve, ApiError, AppState, MotionInput};
+use crate::lm::{
+    classify as lm_classify, forced_frames, prompt_slots, FrameDecoder, Generator, LmError,
+    LmSession, Sampling,
+};
+use crate::motion::{Labels, Motion, Skeleton};
+use std::sync::Arc;
+use std::time::Instant;
+use tokio::sync::mpsc;
+
+/// Longest generation in one request, in frames (two minutes at 20 fps).
+pub const MAX_GENERATE_FRAMES: usize = 2400;
+/// Frames generated when the request names no length and no prompt.
+pub const DEFAULT_GENERATE_FRAMES: usize = 100;
+
+impl From<LmError> for ApiError {
+    fn from(e: LmError) -> Self {
+        match e {
+            LmError::Invalid {
+                file,
+                field,
+                reason,
+            } => ApiError::Invalid {
+                field,
+                reason: if file == "request" {
+                    reason
+                } else {
+                    format!("{file}: {reason}")
+                },
+            },
+            other => ApiError::Internal(other.to_string()),
+        }
+    }
+}
+
+fn model(state: &AppState) -> Result<Arc<LmSession>, ApiError> {
+    state.model.clone().ok_or_else(|| {
+        ApiError::Unavailable(
+            "no model is loaded (start the server with --model DIR holding manifest.json and model.onnx)".into(),
+        )
+    })
+}
+
+/// A generation request as both transports give it.
+pub struct GenerateParams {
+    pub labels: Labels,
+    /// Frames to generate (0 = the prompt's length, or 100).
+    pub frames: usize,
+    /// A motion whose `prompt_joints` are forced frame by frame.
+    pub prompt: Option<MotionInput>,
+    pub prompt_joints: Vec<String>,
+    /// A motion the generation continues.
+    pub seed_motion: Option<MotionInput>,
+    pub sampling: Sampling,
+}
+
+/// A generation ready to run: the generator and the forced slots.
+pub struct GenerateJob {
+    pub session: Arc<LmSession>,
+    gen: Generator,
+    forced: Vec<Vec<Option<u32>>>,
+    pub frames: usize,
+    pub labels: Labels,
+}
+
+impl GenerateJob {
+    /// The next frame's tokens.
+    pub fn next(&mut self) -> Result<Vec<u32>, LmError> {
+        let fl = self.session.config().frame_len;
+        let f = self.gen.produced;
+        let forced = self
+            .forced
+            .get(f)
+            .cloned()
+            .unwrap_or_else(|| vec![None; fl]);
+        self.gen.next_frame(&forced)
+    }
+}
+
+/// Validates a request and sets the generation up (cheap: no model step).
+pub fn generate_job(state: &AppState, p: GenerateParams) -> Result<GenerateJob, ApiError> {
+    let session = model(state)?;
+    let vocab = &session.manifest.vocabulary;
+    if p.frames > MAX_GENERATE_FRAMES {
+        return Err(ApiError::invalid(
+            "frames",
+            format!("{}; at most {MAX_GENERATE_FRAMES} per request", p.frames),
+        ));
+    }
+    let forced = match p.prompt {
+        Some(input) => {
+            if p.prompt_joints.is_empty() {
+                return Err(ApiError::invalid(
+                    "prompt_joints",
+                    format!(
+                        "a prompt needs the joints it fixes (any of: {})",
+                        vocab.joints.join(", ")
+                    ),
+                ));
+            }
+            let m = resolve("prompt", input)?;
+            let slots = prompt_slots(vocab, &p.prompt_joints)?;
+            let tokens = vocab.encode_motion(&m)?;
+            forced_frames(&tokens, &slots)
+        }
+        None => {
+            if !p.prompt_joints.is_empty() {
+                return Err(ApiError::invalid(
+                    "prompt",
+                    "prompt_joints given without a prompt motion",
+                ));
+            }
+            Vec::new()
+        }
+    };
+    let seed = match p.seed_motion {
+        Some(input) => vocab.encode_motion(&resolve("seed_motion", input)?)?,
+        None => Vec::new(),
+    };
+    let frames = match (p.frames, forced.len()) {
+        (0, 0) => DEFAULT_GENERATE_FRAMES,
+        (0, n) => n.min(MAX_GENERATE_FRAMES),
+        (n, _) => n,
+    };
+    let gen = Generator::new(session.clone(), &p.labels, &seed, p.sampling)?;
+    Ok(GenerateJob {
+        session,
+        gen,
+        forced,
+        frames,
+        labels: p.labels,
+    })
+}
+
+/// What a generation measured.
+#[derive(Clone, Debug)]
+pub struct GenerateReport {
+    pub frames: usize,
+    pub seconds: f64,
+    /// Motion seconds produced per wall-clock second.
+    pub real_time_factor: f64,
+}
+
+/// One-shot generation: every frame, decoded into one motion (SMPL-13 at
+/// the model's frame rate).
+pub async fn generate(
+    state: &AppState,
+    p: GenerateParams,
+) -> Result<(Motion, GenerateReport), ApiError> {
+    let mut job = generate_job(state, p)?;
+    state
+        .heavy("generate", move || {
+            let t0 = Instant::now();
+            let mut all = Vec::with_capacity(job.frames * job.session.config().frame_len);
+            for _ in 0..job.frames {
+                all.extend(job.next()?);
+            }
+            let vocab = &job.session.manifest.vocabulary;
+            let mut m = vocab.decode_motion(&all, "generated")?;
+            m.labels = job.labels.clone();
+            let secs = t0.elapsed().as_secs_f64();
+            let report = GenerateReport {
+                frames: job.frames,
+                seconds: secs,
+                real_time_factor: job.frames as f64 / vocab.fps / secs.max(1e-9),
+            };
+            Ok((m, report))
+        })
+        .await
+}
+
+/// One streamed frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StreamFrame {
+    pub index: usize,
+    /// Local axis-angle per joint of the model's skeleton.
+    pub rotations: Vec<[f64; 3]>,
+    pub translation: [f64; 3],
+    /// Time spent producing this frame, ms.
+    pub latency_ms: f64,
+}
+
+/// The model's skeleton and frame rate, for streamed frames.
+pub fn stream_format(state: &AppState) -> Result<(String, f64, Vec<String>), ApiError> {
+    let s = model(state)?;
+    let v = &s.manifest.vocabulary;
+    Ok((v.skeleton.clone(), v.fps, v.joints.clone()))
+}
+
+/// Streaming generation: frames arrive on the channel as soon as each is
+/// decoded. The worker holds a permit and stops when the receiver is
+/// dropped (the client went away).
+pub fn generate_stream(
+    state: &AppState,
+    p: GenerateParams,
+) -> Result<mpsc::Receiver<Result<StreamFrame, ApiError>>, ApiError> {
+    let mut job = generate_job(state, p)?;
+    let permit = state
+        .workers
+        .clone()
+        .try_acquire_owned()
+        .map_err(|_| ApiError::Busy("every worker is busy; retry generate later".into()))?;
+    let (tx, rx) = mpsc::channel(64);
+    tokio::task::spawn_blocking(move || {
+        let _p = permit;
+        let mut dec = FrameDecoder::new();
+        for index in 0..job.frames {
+            let t0 = Instant::now();
+            let out = job
+                .next()
+                .and_then(|tokens| dec.decode(&job.session.manifest.vocabulary, &tokens));
+            let msg = out
+                .map_err(ApiError::from)
+                .map(|(rotations, translation)| StreamFrame {
+                    index,
+                    rotations,
+                    translation,
+                    latency_ms: t0.elapsed().as_secs_f64() * 1e3,
+                });
+            let failed = msg.is_err();
+            if tx.blocking_send(msg).is_err() || failed {
+                break;
+            }
+        }
+    });
+    Ok(rx)
+}
+
+/// A live duet: the performer's prompt joints come in frame by frame, the
+/// model answers each with a full-body frame.
+pub struct DuetSession {
+    session: Arc<LmSession>,
+    gen: Generator,
+    slots: Vec<bool>,
+    prev: Option<Motion>,
+    dec: FrameDecoder,
+    pub frames: usize,
+    _permit: tokio::sync::OwnedSemaphorePermit,
+}
+
+impl DuetSession {
+    pub fn open(
+        state: &AppState,
+        labels: &Labels,
+        joints: &[String],
+        sampling: Sampling,
+    ) -> Result<DuetSession, ApiError> {
+        let session = model(state)?;
+        if joints.is_empty() {
+            return Err(ApiError::invalid(
+                "prompt_joints",
+                "a duet needs the joints the performer drives",
+            ));
+        }
+        let slots = prompt_slots(&session.manifest.vocabulary, joints)?;
+        let gen = Generator::new(session.clone(), labels, &[], sampling)?;
+        let permit = state
+            .workers
+            .clone()
+            .try_acquire_owned()
+            .map_err(|_| ApiError::Busy("every worker is busy; retry the duet later".into()))?;
+        Ok(DuetSession {
+            session,
+            gen,
+            slots,
+            prev: None,
+            dec: FrameDecoder::new(),
+            frames: 0,
+            _permit: permit,
+        })
+    }
+
+    /// One performer frame in (a one-frame motion at the model's frame
+    /// rate), one full-body frame out.
+    pub fn step(&mut self, frame: Motion) -> Result<StreamFrame, ApiError> {
+        let t0 = Instant::now();
+        let vocab = &self.session.manifest.vocabulary;
+        if frame.frames() != 1 {
+            return Err(ApiError::invalid(
+                "frame",
+                format!("{} frames; send one frame a message", frame.frames()),
+            ));
+        }
+        if (frame.fps - vocab.fps).abs() > 1e-6 {
+            return Err(ApiError::invalid(
+                "frame.fps",
+                format!(
+                    "{}; a duet runs at the model's {} fps",
+                    frame.fps, vocab.fps
+                ),
+            ));
+        }
+        // Velocities need the previous frame: encode the pair, keep the last.
+        let pair = match &self.prev {
+            Some(p) if p.skeleton.names == frame.skeleton.names => {
+                let mut rot = p.rotations.clone();
+                rot.extend_from_slice(&frame.rotations);
+                Motion::new(
+                    "duet",
+                    frame.fps,
+                    frame.skeleton.clone(),
+                    vec![p.trans[0], frame.trans[0]],
+                    rot,
+                    Labels::new(),
+                )?
+            }
+            _ => frame.clone(),
+        };
+        let tokens = vocab.encode_motion(&pair)?;
+        let fl = vocab.frame_len();
+        let last = &tokens[tokens.len() - fl..];
+        let forced = forced_frames(last, &self.slots).pop().unwrap_or_default();
+        let out = self.gen.next_frame(&forced)?;
+        let (rotations, translation) = self.dec.decode(vocab, &out)?;
+        self.prev = Some(frame);
+        let index = self.frames;
+        self.frames += 1;
+        Ok(StreamFrame {
+            index,
+            rotations,
+            translation,
+            latency_ms: t0.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+}
+
+/// Class probabilities per label kind the model classifies.
+pub type Classes = Vec<(String, Vec<(String, f64)>)>;
+
+pub async fn classify(state: &AppState, motion: MotionInput) -> Result<Classes, ApiError> {
+    let session = model(state)?;
+    let m = resolve("motion", motion)?;
+    state
+        .heavy("classify", move || {
+            let tokens = session.manifest.vocabulary.encode_motion(&m)?;
+            Ok(lm_classify(&session, &tokens, 32)?)
+        })
+        .await
+}
+
+/// A one-frame motion from wire parts (for duet messages).
+pub fn skeleton_by_name(name: &str) -> Option<Skeleton> {
+    match name {
+        "smpl24" | "" => Some(Skeleton::smpl24()),
+        "smpl13" => Some(Skeleton::smpl13()),
+        _ => None,
+    }
+}

@@ -1,0 +1,325 @@
+//! The trainer and the runtime together: export parity (tract against the
+//! trainer's forward pass, whole and incremental), streaming against
+//! one-shot, decoding generated tokens, and the bad-input paths.
+#![cfg(feature = "train")]
+
+use candle_core::Device;
+use choreo::lm::manifest::DataInfo;
+use choreo::lm::runtime::Kv;
+use choreo::lm::{FrameDecoder, Generator, LmSession, ModelConfig, Objective, PosScheme, Sampling};
+use choreo::motion::{Labels, Motion, Skeleton};
+use choreo::tokenize::vocab::Vocabulary;
+use choreo::train::model::{AdamW, Gpt};
+use choreo::train::{data, export, parity};
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
+
+fn vocab() -> Vocabulary {
+    let mut labels: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    labels.insert(
+        "genre".into(),
+        ["gBR", "gJS"].iter().map(|s| s.to_string()).collect(),
+    );
+    labels.insert(
+        "style".into(),
+        ["happy", "sad", "proud"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect(),
+    );
+    Vocabulary::new(labels)
+}
+
+fn config(v: &Vocabulary, positions: PosScheme, objective: Objective) -> ModelConfig {
+    ModelConfig {
+        vocab_size: v.size(),
+        d_model: 32,
+        n_layers: 2,
+        n_heads: 4,
+        d_ff: 64,
+        max_frames: 4,
+        frame_len: v.frame_len(),
+        cond_kinds: vec!["genre".into(), "style".into()],
+        classes: vec![(
+            "style".into(),
+            vec!["happy".into(), "proud".into(), "sad".into()],
+        )],
+        positions,
+        objective,
+        ln_eps: 1e-5,
+    }
+}
+
+/// A hand-made SMPL clip: the left elbow swings as a sine, the root walks.
+fn sine_motion(frames: usize, phase: f64) -> Motion {
+    let sk = Skeleton::smpl24();
+    let mut rots = vec![[0.0; 3]; frames * 24];
+    let mut trans = Vec::new();
+    for f in 0..frames {
+        let t = f as f64 / 60.0;
+        rots[f * 24 + 18] = [
+            0.0,
+            0.0,
+            0.8 * (2.0 * std::f64::consts::PI * t + phase).sin(),
+        ];
+        rots[f * 24 + 1] = [0.3 * (t + phase).sin(), 0.1, 0.0];
+        trans.push([0.5 * t, 0.9, 0.0]);
+    }
+    let mut labels = Labels::new();
+    labels.insert("genre".into(), "gBR".into());
+    labels.insert(
+        "style".into(),
+        if phase > 1.0 { "sad" } else { "happy" }.into(),
+    );
+    Motion::new(&format!("sine{phase}"), 60.0, sk, trans, rots, labels).unwrap()
+}
+
+/// A few optimisation steps so the weights are not the initial ones.
+fn trained(cfg: ModelConfig, v: &Vocabulary) -> Gpt {
+    let dev = Device::Cpu;
+    let model = Gpt::new(cfg, 0.0, &dev).unwrap();
+    let motions: Vec<(String, Motion)> = (0..4)
+        .map(|i| ("synthetic".to_string(), sine_motion(120, i as f64 * 0.7)))
+        .collect();
+    let corpus = data::build(motions, v, 0.25, true, DataInfo::default()).unwrap();
+    let cum = choreo::train::cumulative(&corpus, v.frame_len());
+    let s = choreo::train::RunSettings {
+        steps: 3,
+        batch: 2,
+        lr: 3e-3,
+        min_lr_ratio: 0.1,
+        warmup: 1,
+        weight_decay: 0.1,
+        dropout: 0.0,
+        eval_every: 10,
+        seed: 1,
+        keep_label: 0.8,
+        classify_fraction: 0.5,
+        class_weight: 1.0,
+        mask_rate: 0.15,
+        max_seconds: 0.0,
+    };
+    let mut opt = AdamW::new(s.lr, s.weight_decay);
+    let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(3);
+    for _ in 0..3 {
+        choreo::train::train_step(&model, &mut opt, v, &corpus, &cum, &s, &mut rng, &dev).unwrap();
+    }
+    model
+}
+
+#[test]
+fn exported_graph_matches_the_trainer_whole_and_incremental() {
+    let v = vocab();
+    for (pos, obj) in [
+        (PosScheme::FrameSlot, Objective::Causal),
+        (PosScheme::Absolute, Objective::Causal),
+        (PosScheme::FrameSlot, Objective::Masked),
+    ] {
+        let model = trained(config(&v, pos, obj), &v);
+        let dir = tempfile::tempdir().unwrap();
+        export::export(
+            &model,
+            &v,
+            DataInfo::default(),
+            BTreeMap::new(),
+            serde_json::json!({}),
+            dir.path(),
+        )
+        .unwrap();
+        let r = parity::check(&model, &v, dir.path(), 11).unwrap();
+        eprintln!("{pos:?} {obj:?}: {r}");
+        assert!(r.whole < 1e-4, "{r}");
+        assert!(r.classes < 1e-4, "{r}");
+        if obj == Objective::Causal {
+            // A masked model sees the future, so it has no incremental form.
+            assert!(r.incremental < 1e-4, "{r}");
+        }
+    }
+}
+
+fn exported(pos: PosScheme) -> (tempfile::TempDir, Arc<LmSession>) {
+    let v = vocab();
+    let model = trained(config(&v, pos, Objective::Causal), &v);
+    let dir = tempfile::tempdir().unwrap();
+    export::export(
+        &model,
+        &v,
+        DataInfo::default(),
+        BTreeMap::new(),
+        serde_json::json!({}),
+        dir.path(),
+    )
+    .unwrap();
+    let s = Arc::new(LmSession::load(dir.path()).unwrap());
+    (dir, s)
+}
+
+#[test]
+fn streaming_equals_one_shot_and_decodes_to_valid_motion() {
+    let (_d, s) = exported(PosScheme::FrameSlot);
+    let v = &s.manifest.vocabulary;
+    let fl = v.frame_len();
+    let mut labels = Labels::new();
+    labels.insert("style".into(), "sad".into());
+    let sampling = Sampling {
+        temperature: 1.0,
+        top_k: 50,
+        top_p: 0.95,
+        seed: 42,
+    };
+    // 11 frames: the window (4) slides several times.
+    let run = |n: usize| {
+        let mut g = Generator::new(s.clone(), &labels, &[], sampling.clone()).unwrap();
+        (0..n)
+            .flat_map(|_| g.next_frame(&vec![None; fl]).unwrap())
+            .collect::<Vec<u32>>()
+    };
+    let a = run(11);
+    let b = run(11);
+    assert_eq!(a, b, "the same seed gives the same frames");
+    let m = v.decode_motion(&a, "generated").unwrap();
+    assert_eq!(m.frames(), 11);
+    assert!(m
+        .rotations
+        .iter()
+        .flatten()
+        .chain(m.trans.iter().flatten())
+        .all(|x| x.is_finite()));
+    // Frame by frame decoding gives the same motion as decoding the whole.
+    let mut dec = FrameDecoder::new();
+    for f in 0..11 {
+        let (rot, tr) = dec.decode(v, &a[f * fl..(f + 1) * fl]).unwrap();
+        assert_eq!(rot, m.frame_rotations(f).to_vec());
+        assert_eq!(tr, m.trans[f]);
+    }
+    // It writes as BVH and reads back.
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("gen.bvh");
+    choreo::motion::io::write_path(&m, &p, &Default::default()).unwrap();
+    let back = choreo::motion::io::read_path(&p, &Default::default()).unwrap();
+    assert_eq!(back.motion.frames(), 11);
+}
+
+#[test]
+fn a_joint_prompt_is_kept_in_the_output() {
+    let (_d, s) = exported(PosScheme::Absolute);
+    let v = &s.manifest.vocabulary;
+    let prompt = v.encode_motion(&sine_motion(60, 0.3)).unwrap();
+    let slots = choreo::lm::prompt_slots(v, &["pelvis".into(), "left_elbow".into()]).unwrap();
+    let forced = choreo::lm::forced_frames(&prompt, &slots);
+    let mut g = Generator::new(s.clone(), &Labels::new(), &[], Sampling::default()).unwrap();
+    for (f, want) in forced.iter().enumerate().take(9) {
+        let got = g.next_frame(want).unwrap();
+        for (slot, w) in want.iter().enumerate() {
+            if let Some(t) = w {
+                assert_eq!(got[slot], *t, "frame {f} slot {slot}");
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_inputs_are_clear_errors() {
+    let (dir, s) = exported(PosScheme::FrameSlot);
+    // A label value the model never saw.
+    let mut l = Labels::new();
+    l.insert("genre".into(), "gZZ".into());
+    let e = Generator::new(s.clone(), &l, &[], Sampling::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("labels") && e.contains("gZZ"), "{e}");
+    // A label kind the model does not condition on.
+    let mut l = Labels::new();
+    l.insert("tempo".into(), "120".into());
+    let e = Generator::new(s.clone(), &l, &[], Sampling::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("labels.tempo"), "{e}");
+    // An unknown prompt joint.
+    let e = choreo::lm::prompt_slots(&s.manifest.vocabulary, &["tail".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("prompt.joints") && e.contains("tail"), "{e}");
+    // Out-of-range positions never reach the graph.
+    let e = s
+        .step(
+            &[1],
+            &[choreo::lm::Pos { a: 999, b: 0 }],
+            Kv::empty(s.config()),
+        )
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("positions"), "{e}");
+    // A manifest that does not match its ONNX file.
+    let onnx = dir.path().join("model.onnx");
+    let mut bytes = std::fs::read(&onnx).unwrap();
+    let n = bytes.len();
+    bytes[n - 5] ^= 0xff;
+    std::fs::write(&onnx, &bytes).unwrap();
+    let e = LmSession::load(dir.path()).err().unwrap().to_string();
+    assert!(e.contains("onnx_sha256"), "{e}");
+    // A missing manifest.
+    let e = LmSession::load(&dir.path().join("nowhere"))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("nowhere"), "{e}");
+}
+
+#[test]
+fn corrupt_checkpoint_and_empty_corpus_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = choreo::train::load_checkpoint(dir.path(), &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("checkpoint.json"), "{e}");
+    // A checkpoint whose weights are garbage.
+    let v = vocab();
+    let model = Gpt::new(
+        config(&v, PosScheme::FrameSlot, Objective::Causal),
+        0.0,
+        &Device::Cpu,
+    )
+    .unwrap();
+    let opt = AdamW::new(1e-3, 0.0);
+    let state = choreo::train::CheckpointState {
+        config: model.cfg.clone(),
+        vocabulary: v.clone(),
+        settings: serde_json::from_value(serde_json::json!({
+            "steps": 1, "batch": 1, "lr": 0.001, "min_lr_ratio": 0.1, "warmup": 1, "weight_decay": 0.0,
+            "dropout": 0.0, "eval_every": 1, "seed": 0, "keep_label": 1.0, "classify_fraction": 0.0,
+            "class_weight": 1.0, "mask_rate": 0.15, "max_seconds": 0.0
+        }))
+        .unwrap(),
+        step: 0,
+        adam_step: 0,
+        history: vec![],
+        regime: "scratch".into(),
+        parent: None,
+        data: DataInfo::default(),
+        metrics: BTreeMap::new(),
+    };
+    choreo::train::save_checkpoint(dir.path(), &model, &opt, &state).unwrap();
+    assert!(choreo::train::load_checkpoint(dir.path(), &Device::Cpu).is_ok());
+    std::fs::write(
+        dir.path().join("checkpoint.safetensors"),
+        b"not a checkpoint",
+    )
+    .unwrap();
+    let e = choreo::train::load_checkpoint(dir.path(), &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("checkpoint.safetensors"), "{e}");
+    // An empty corpus.
+    let empty = tempfile::tempdir().unwrap();
+    let e = data::read_motions(&[("x".into(), empty.path().to_path_buf())])
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("empty corpus"), "{e}");
+}
