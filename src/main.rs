@@ -16,7 +16,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 use serde_json::json;
 use std::collections::BTreeMap;
 use std::io::Read;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 #[derive(Parser)]
 #[command(
@@ -278,6 +279,22 @@ enum BenchCmd {
         bpm: f64,
         #[arg(long, default_value_t = 9)]
         per_measure: usize,
+    },
+    /// The exported language model in tract: whole-window forward
+    /// tokens/s, incremental generation per-frame latency and real-time
+    /// factor at the model's frame rate.
+    Model {
+        #[arg(long, default_value = "models/default")]
+        model: PathBuf,
+        #[arg(long, default_value_t = 20)]
+        repeats: usize,
+        /// Frames to generate for the streaming figures.
+        #[arg(long, default_value_t = 200)]
+        frames: usize,
+        /// Write the benchmark window's inputs as JSON (for
+        /// scripts/bench_onnxruntime.py).
+        #[arg(long)]
+        dump: Option<PathBuf>,
     },
     /// Embedding throughput (windows/s) on the real windows of a corpus.
     Embed {
@@ -606,6 +623,15 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Bench {
             cmd: BenchCmd::Embed { data, dump },
         } => bench_embed(&data, dump.as_deref()),
+        Cmd::Bench {
+            cmd:
+                BenchCmd::Model {
+                    model,
+                    repeats,
+                    frames,
+                    dump,
+                },
+        } => bench_model(&model, repeats, frames, dump.as_deref()),
         Cmd::Bench {
             cmd:
                 BenchCmd::Keyframes {
@@ -1493,6 +1519,79 @@ fn bench_keyframes(
          whole clip, {total_keys} keyframes, exact: {:.2} s (cost {:.3})\n\
          whole clip, gaps ≤ 2 measures: {:.2} s (cost {:.3})",
         m.name, per, whole, cost, gapped, cost_gap
+    );
+    Ok(())
+}
+
+fn bench_model(dir: &Path, repeats: usize, frames: usize, dump: Option<&Path>) -> Result<()> {
+    use choreo::lm::{Generator, Kv, LmSession, Sampling};
+    let t0 = Instant::now();
+    let s = std::sync::Arc::new(LmSession::load(dir)?);
+    let load = t0.elapsed().as_secs_f64();
+    let cfg = s.config().clone();
+    let v = &s.manifest.vocabulary;
+    // A full window of real-looking tokens: <bos> then frames of mid bins.
+    let mut toks = vec![v.bos()];
+    let nf = cfg.max_frames * cfg.frame_len;
+    for j in 0..nf {
+        let r = v.allowed(j % cfg.frame_len);
+        toks.push(if r.len() == 1 {
+            r.start
+        } else {
+            r.start + ((j * 37) % r.len()) as u32
+        });
+    }
+    let pos = cfg.positions(1, nf, 0);
+    s.step(&toks, &pos, Kv::empty(&cfg))?;
+    let t1 = Instant::now();
+    for _ in 0..repeats {
+        s.step(&toks, &pos, Kv::empty(&cfg))?;
+    }
+    let per = t1.elapsed().as_secs_f64() / repeats as f64;
+    if let Some(p) = dump {
+        let a: Vec<i64> = pos.iter().map(|q| q.a).collect();
+        let b: Vec<i64> = pos.iter().map(|q| q.b).collect();
+        std::fs::write(
+            p,
+            serde_json::json!({"tokens": toks, "pos_a": a, "pos_b": b, "objective": cfg.objective, "n_layers": cfg.n_layers, "n_heads": cfg.n_heads, "d_head": cfg.d_head(), "inputs": s.manifest.inputs}).to_string(),
+        )?;
+    }
+    // Streaming: per-frame latency over `frames` frames (window slides).
+    let mut g = Generator::new(
+        s.clone(),
+        &Default::default(),
+        &[],
+        Sampling {
+            temperature: 1.0,
+            top_k: 0,
+            top_p: 1.0,
+            seed: 1,
+        },
+    )?;
+    let mut lat = Vec::with_capacity(frames);
+    let t2 = Instant::now();
+    for _ in 0..frames {
+        let t = Instant::now();
+        g.next_frame(&vec![None; cfg.frame_len])?;
+        lat.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let total = t2.elapsed().as_secs_f64();
+    lat.sort_by(f64::total_cmp);
+    let q = |p: f64| lat[((lat.len() as f64 - 1.0) * p).round() as usize];
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&serde_json::json!({
+            "model": dir.display().to_string(),
+            "load_s": load,
+            "window_tokens": toks.len(),
+            "window_forward_ms": per * 1e3,
+            "forward_tokens_per_s": toks.len() as f64 / per,
+            "stream_frames": frames,
+            "frame_ms_p50": q(0.5),
+            "frame_ms_p95": q(0.95),
+            "frame_ms_max": q(1.0),
+            "real_time_factor": frames as f64 / v.fps / total,
+        }))?
     );
     Ok(())
 }

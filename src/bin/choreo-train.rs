@@ -145,6 +145,14 @@ enum Cmd {
         #[arg(long)]
         checkpoint: PathBuf,
     },
+    /// Forward tokens/s of the trainer's own forward pass (candle, no
+    /// gradient) on one full window, beside `choreo bench model` (tract).
+    BenchForward {
+        #[arg(long)]
+        checkpoint: PathBuf,
+        #[arg(long, default_value_t = 20)]
+        repeats: usize,
+    },
     /// Held-out loss and bits/frame of a checkpoint on the validation split
     /// of the given corpora (the same split training uses).
     Eval {
@@ -211,6 +219,55 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::EvalClassify { checkpoint, data } => eval_classify(&checkpoint, &data),
+        Cmd::BenchForward {
+            checkpoint,
+            repeats,
+        } => {
+            let dev = tr::device();
+            let (st, model, _) = tr::load_checkpoint(&checkpoint, &dev)?;
+            let cfg = &model.cfg;
+            let v = &st.vocabulary;
+            let mut toks = vec![v.bos()];
+            let nf = cfg.max_frames * cfg.frame_len;
+            for j in 0..nf {
+                let r = v.allowed(j % cfg.frame_len);
+                toks.push(if r.len() == 1 {
+                    r.start
+                } else {
+                    r.start + ((j * 37) % r.len()) as u32
+                });
+            }
+            let pos = cfg.positions(1, nf, 0);
+            let n = toks.len();
+            let t = candle_core::Tensor::from_vec(toks, (1, n), &dev)?;
+            let pa = candle_core::Tensor::from_vec(
+                pos.iter().map(|p| p.a as u32).collect::<Vec<_>>(),
+                (1, n),
+                &dev,
+            )?;
+            let pb = candle_core::Tensor::from_vec(
+                pos.iter().map(|p| p.b as u32).collect::<Vec<_>>(),
+                (1, n),
+                &dev,
+            )?;
+            let bias = candle_core::Tensor::from_vec(
+                choreo::lm::runtime::attention_bias(cfg.objective, 0, n),
+                (1, 1, n, n),
+                &dev,
+            )?;
+            let pbo = (cfg.table_b() > 0).then_some(&pb);
+            model.forward(&t, &pa, pbo, &bias, None, false)?;
+            let t0 = Instant::now();
+            for _ in 0..repeats {
+                model.forward(&t, &pa, pbo, &bias, None, false)?;
+            }
+            let per = t0.elapsed().as_secs_f64() / repeats as f64;
+            println!(
+                "{}",
+                serde_json::json!({"trainer": "candle", "window_tokens": n, "window_forward_ms": per * 1e3, "forward_tokens_per_s": n as f64 / per})
+            );
+            Ok(())
+        }
         Cmd::Eval { checkpoint, data } => {
             let dev = tr::device();
             let (st, model, _) = tr::load_checkpoint(&checkpoint, &dev)?;

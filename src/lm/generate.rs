@@ -110,21 +110,26 @@ impl Sampling {
 
 /// Which of a frame's slots a joint prompt fixes: three per named joint;
 /// naming the root (`pelvis`) also fixes the root's velocity and height
-/// slots, so the prompt carries the path through space.
+/// slots, so the prompt carries the path through space. Names match
+/// without regard to case (`right_elbow` = `Right_Elbow`).
 pub fn prompt_slots(vocab: &Vocabulary, joints: &[String]) -> Result<Vec<bool>, LmError> {
     let fl = vocab.frame_len();
     let mut slots = vec![false; fl];
     for name in joints {
-        let k = vocab.joints.iter().position(|j| j == name).ok_or_else(|| {
-            LmError::invalid(
-                "request",
-                "prompt.joints",
-                format!(
-                    "unknown joint {name:?} (the model's joints: {})",
-                    vocab.joints.join(", ")
-                ),
-            )
-        })?;
+        let k = vocab
+            .joints
+            .iter()
+            .position(|j| j.eq_ignore_ascii_case(name))
+            .ok_or_else(|| {
+                LmError::invalid(
+                    "request",
+                    "prompt.joints",
+                    format!(
+                        "unknown joint {name:?} (the model's joints: {})",
+                        vocab.joints.join(", ")
+                    ),
+                )
+            })?;
         for s in 3 * k..3 * k + 3 {
             slots[s] = true;
         }

@@ -489,9 +489,7 @@ mod tests {
     /// 13-joint clip at 20 fps: the root walks 1 m/s along +x at 0.9 m, the
     /// left elbow swings.
     fn walk(frames: usize) -> Motion {
-        let sk = self.skeleton_def().ok_or_else(|| {
-            MotionError::invalid(name, "vocabulary.skeleton", self.skeleton.clone())
-        })?;
+        let sk = Skeleton::smpl13();
         let o = sk.offsets[0];
         let mut rots = vec![[0.0; 3]; frames * 13];
         for f in 0..frames {
