@@ -794,7 +794,8 @@ fn eval_classify(ckpt: &Path, a: &DataArgs) -> Result<()> {
     let (vocab, corpus) = load_corpus(a, Some(&st.vocabulary), &kinds, false, st.vocabulary.fps)?;
     let fl = vocab.frame_len();
     let w = st.config.max_frames;
-    let ev = tr::evaluate(&model, &vocab, &corpus, 16, &dev)?;
+    // Every held-out window, the same ones the baselines see.
+    let ev = tr::evaluate_on(&model, &vocab, &corpus, 16, &dev, usize::MAX)?;
     let train_w = data::eval_windows(&corpus.train, fl, w);
     let val_w = data::eval_windows(&corpus.val, fl, w);
     println!("Classification accuracy (%) on held-out windows of {w} frames ({} validation sequences of {:?})", corpus.val.len(), corpus.info.corpora);

@@ -184,14 +184,26 @@ pub fn evaluate(
     batch: usize,
     dev: &Device,
 ) -> Result<Evaluation> {
+    evaluate_on(model, vocab, corpus, batch, dev, EVAL_WINDOWS)
+}
+
+/// [`evaluate`] on at most `max_windows` windows (spread evenly).
+pub fn evaluate_on(
+    model: &Gpt,
+    vocab: &Vocabulary,
+    corpus: &Corpus,
+    batch: usize,
+    dev: &Device,
+    max_windows: usize,
+) -> Result<Evaluation> {
     let cfg = &model.cfg;
     let fl = cfg.frame_len;
     let mut windows = data::eval_windows(&corpus.val, fl, cfg.max_frames);
     // A fixed, evenly spread subset keeps evaluation cheap and comparable.
-    if windows.len() > EVAL_WINDOWS {
+    if windows.len() > max_windows {
         let n = windows.len();
-        windows = (0..EVAL_WINDOWS)
-            .map(|i| windows[i * n / EVAL_WINDOWS])
+        windows = (0..max_windows)
+            .map(|i| windows[i * n / max_windows])
             .collect();
     }
     if windows.is_empty() {
