@@ -1530,18 +1530,7 @@ fn bench_model(dir: &Path, repeats: usize, frames: usize, dump: Option<&Path>) -
     let load = t0.elapsed().as_secs_f64();
     let cfg = s.config().clone();
     let v = &s.manifest.vocabulary;
-    // A full window of real-looking tokens: <bos> then frames of mid bins.
-    let mut toks = vec![v.bos()];
-    let nf = cfg.max_frames * cfg.frame_len;
-    for j in 0..nf {
-        let r = v.allowed(j % cfg.frame_len);
-        toks.push(if r.len() == 1 {
-            r.start
-        } else {
-            r.start + ((j * 37) % r.len()) as u32
-        });
-    }
-    let pos = cfg.positions(1, nf, 0);
+    let (toks, pos) = choreo::lm::bench_window(&cfg, v);
     s.step(&toks, &pos, Kv::empty(&cfg))?;
     let t1 = Instant::now();
     for _ in 0..repeats {

@@ -183,16 +183,7 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Survey { data, json } => survey(&data, json),
         Cmd::Train(a) => train(*a),
         Cmd::Export { checkpoint, out } => {
-            let dev = tr::device();
-            let (st, model, _) = tr::load_checkpoint(&checkpoint, &dev)?;
-            let m = tr::export::export(
-                &model,
-                &st.vocabulary,
-                st.data.clone(),
-                st.metrics.clone(),
-                training_json(&st),
-                &out,
-            )?;
+            let (_, model, m) = export_checkpoint(&checkpoint, &out)?;
             println!(
                 "exported {} ({} parameters) to {}",
                 m.onnx,
@@ -202,17 +193,8 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::Parity { checkpoint } => {
-            let dev = tr::device();
-            let (st, model, _) = tr::load_checkpoint(&checkpoint, &dev)?;
             let dir = tempdir_in(&checkpoint)?;
-            tr::export::export(
-                &model,
-                &st.vocabulary,
-                st.data.clone(),
-                st.metrics.clone(),
-                training_json(&st),
-                &dir,
-            )?;
+            let (st, model, _) = export_checkpoint(&checkpoint, &dir)?;
             let r = choreo::train::parity::check(&model, &st.vocabulary, &dir, 7)?;
             println!("{r}");
             let _ = std::fs::remove_dir_all(&dir);
@@ -227,17 +209,7 @@ fn run(cli: Cli) -> Result<()> {
             let (st, model, _) = tr::load_checkpoint(&checkpoint, &dev)?;
             let cfg = &model.cfg;
             let v = &st.vocabulary;
-            let mut toks = vec![v.bos()];
-            let nf = cfg.max_frames * cfg.frame_len;
-            for j in 0..nf {
-                let r = v.allowed(j % cfg.frame_len);
-                toks.push(if r.len() == 1 {
-                    r.start
-                } else {
-                    r.start + ((j * 37) % r.len()) as u32
-                });
-            }
-            let pos = cfg.positions(1, nf, 0);
+            let (toks, pos) = choreo::lm::bench_window(cfg, v);
             let n = toks.len();
             let t = candle_core::Tensor::from_vec(toks, (1, n), &dev)?;
             let pa = candle_core::Tensor::from_vec(
@@ -296,6 +268,23 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// Loads a checkpoint and exports it to `out`.
+fn export_checkpoint(
+    checkpoint: &Path,
+    out: &Path,
+) -> Result<(CheckpointState, Gpt, choreo::lm::Manifest)> {
+    let (st, model, _) = tr::load_checkpoint(checkpoint, &tr::device())?;
+    let m = tr::export::export(
+        &model,
+        &st.vocabulary,
+        st.data.clone(),
+        st.metrics.clone(),
+        training_json(&st),
+        out,
+    )?;
+    Ok((st, model, m))
 }
 
 fn tempdir_in(base: &Path) -> Result<PathBuf> {

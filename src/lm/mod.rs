@@ -221,6 +221,26 @@ impl From<crate::motion::MotionError> for LmError {
     }
 }
 
+/// A full benchmark window: `<bos>` then `max_frames` frames of valid
+/// tokens spread over the bins, with its positions. Shared by the runtime
+/// benchmark and the trainer's, so both time the same input.
+pub fn bench_window(
+    cfg: &ModelConfig,
+    vocab: &crate::tokenize::vocab::Vocabulary,
+) -> (Vec<u32>, Vec<Pos>) {
+    let mut toks = vec![vocab.bos()];
+    let nf = cfg.max_frames * cfg.frame_len;
+    for j in 0..nf {
+        let r = vocab.allowed(j % cfg.frame_len);
+        toks.push(if r.len() == 1 {
+            r.start
+        } else {
+            r.start + ((j * 37) % r.len()) as u32
+        });
+    }
+    (toks, cfg.positions(1, nf, 0))
+}
+
 /// Bits per frame from a mean loss in nats per token (SPEC §5:
 /// tokens per frame × loss / ln 2).
 pub fn bits_per_frame(loss_nats: f64, frame_len: usize) -> f64 {

@@ -213,10 +213,11 @@ mod tests {
         for i in 0..200 {
             let c = i % 2;
             let j = (i as f64 * 0.618).fract() - 0.5;
-            x.push(vec![c as f64 * 2.0 + j, j * 0.5]);
+            let k = (i as f64 * 0.377).fract() - 0.5;
+            x.push(vec![c as f64 * 2.0 + j, k * 0.5]);
             y.push(c);
         }
-        let lda = Lda::fit(&x, &y, 2, 0.0).unwrap();
+        let lda = Lda::fit(&x, &y, 2, 0.1).unwrap();
         assert_eq!(lda.predict(&[0.1, 0.0]), 0);
         assert_eq!(lda.predict(&[1.9, 0.0]), 1);
     }
