@@ -141,9 +141,21 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
             .context("REST server")
     });
     let svc = grpc::service(state, max);
+    // Standard gRPC health (SERVING for "" and choreo.v1.Choreo) and
+    // reflection (grpcurl works without the .proto file).
+    let (health_reporter, health) = tonic_health::server::health_reporter();
+    health_reporter
+        .set_serving::<grpc::pb::choreo_server::ChoreoServer<grpc::ChoreoGrpc>>()
+        .await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(grpc::FILE_DESCRIPTOR_SET)
+        .build_v1()
+        .context("gRPC reflection")?;
     let r2 = rx.clone();
     let t2 = tokio::spawn(async move {
         tonic::transport::Server::builder()
+            .add_service(health)
+            .add_service(reflection)
             .add_service(svc)
             .serve_with_incoming_shutdown(
                 tonic::transport::server::TcpIncoming::from(grpc_l),

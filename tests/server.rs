@@ -261,6 +261,24 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
         .await
         .unwrap();
+    // Standard gRPC health says the service is serving.
+    let channel = tonic::transport::Channel::from_shared(format!("http://{g}"))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    let mut health = tonic_health::pb::health_client::HealthClient::new(channel);
+    let st = health
+        .check(tonic_health::pb::HealthCheckRequest {
+            service: "choreo.v1.Choreo".into(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(
+        st.status,
+        tonic_health::pb::health_check_response::ServingStatus::Serving as i32
+    );
     let file = aist.join("gBR_sBM_cAll_d04_mBR2_ch08.pkl");
     let bytes = std::fs::read(&file).unwrap();
     let b64 = base64::engine::general_purpose::STANDARD.encode(&bytes);

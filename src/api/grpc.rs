@@ -14,6 +14,9 @@ pub mod pb {
 
 use pb::choreo_server::{Choreo, ChoreoServer};
 
+/// The encoded descriptor set of `proto/choreo/v1`, served by reflection.
+pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("choreo_descriptor");
+
 impl From<ApiError> for Status {
     fn from(e: ApiError) -> Status {
         Status::new(e.grpc_code(), e.to_string())
