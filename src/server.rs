@@ -118,6 +118,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         store,
         searcher,
         model,
+        metrics: Default::default(),
         workers: Arc::new(tokio::sync::Semaphore::new(cfg.workers.max(1))),
     });
     let max = cfg.max_body_mb.max(1) << 20;
@@ -140,6 +141,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
             .await
             .context("REST server")
     });
+    let grpc_metrics = crate::api::metrics::GrpcMetricsLayer(state.metrics.clone());
     let svc = grpc::service(state, max);
     // Standard gRPC health (SERVING for "" and choreo.v1.Choreo) and
     // reflection (grpcurl works without the .proto file).
@@ -154,6 +156,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     let r2 = rx.clone();
     let t2 = tokio::spawn(async move {
         tonic::transport::Server::builder()
+            .layer(grpc_metrics)
             .add_service(health)
             .add_service(reflection)
             .add_service(svc)

@@ -467,6 +467,33 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         .await
         .unwrap_err();
     assert_eq!(e.code(), tonic::Code::InvalidArgument);
+
+    // Prometheus metrics count both transports by route and outcome.
+    let (status, _) = tokio::task::spawn_blocking(move || http(h, "GET", "/healthz", None))
+        .await
+        .unwrap();
+    assert_eq!(status, 200);
+    let metrics = tokio::task::spawn_blocking(move || {
+        let mut s = std::net::TcpStream::connect(h).unwrap();
+        write!(
+            s,
+            "GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        )
+        .unwrap();
+        let mut out = String::new();
+        s.read_to_string(&mut out).unwrap();
+        out
+    })
+    .await
+    .unwrap();
+    for want in [
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 1",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 2",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 1",
+        "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
+    ] {
+        assert!(metrics.contains(want), "missing {want} in\n{metrics}");
+    }
     running.shutdown().await.unwrap();
 }
 

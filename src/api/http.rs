@@ -353,8 +353,42 @@ async fn classify(
 }
 
 /// The REST routes; `max_body` bytes per request.
+/// Records every REST request (route template, status, latency).
+async fn track(
+    State(s): State<Arc<AppState>>,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let route = req
+        .extensions()
+        .get::<axum::extract::MatchedPath>()
+        .map(|p| p.as_str().to_string())
+        .unwrap_or_else(|| "unmatched".into());
+    let t0 = std::time::Instant::now();
+    let resp = next.run(req).await;
+    s.metrics.observe(
+        "http",
+        &route,
+        resp.status().as_str(),
+        t0.elapsed().as_secs_f64(),
+    );
+    resp
+}
+
 pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
     Router::new()
+        .route(
+            "/metrics",
+            get(|State(s): State<Arc<AppState>>| async move {
+                (
+                    [(
+                        axum::http::header::CONTENT_TYPE,
+                        "text/plain; version=0.0.4",
+                    )],
+                    s.metrics.render(),
+                )
+            }),
+        )
         .route("/healthz", get(|| async { "ok" }))
         .route("/readyz", get(|| async { "ready" }))
         .route("/v1/query", post(query))
@@ -365,5 +399,6 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         .route("/v1/classify", post(classify))
         .route("/v1/motions", get(list_motions))
         .layer(DefaultBodyLimit::max(max_body))
+        .route_layer(axum::middleware::from_fn_with_state(state.clone(), track))
         .with_state(state)
 }

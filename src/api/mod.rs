@@ -8,6 +8,7 @@
 pub mod grpc;
 pub mod http;
 pub mod lm;
+pub mod metrics;
 
 use crate::features::interpolate::{lowpass as lowpass_channels, to_f64, InterpolateOptions};
 use crate::features::{rows72, smpl24_at_60, Embedding};
@@ -203,6 +204,8 @@ pub struct AppState {
     pub workers: Arc<Semaphore>,
     /// The motion language model, when one is installed.
     pub model: Option<Arc<crate::lm::LmSession>>,
+    /// Request counts and latencies for `/metrics`.
+    pub metrics: Arc<metrics::Metrics>,
 }
 
 impl AppState {
