@@ -450,18 +450,8 @@ fn train(a: TrainArgs) -> Result<()> {
             } else {
                 "fine-tune+classify"
             };
-            let s = CheckpointState {
-                config: cfg,
-                vocabulary: vocab.clone(),
-                settings: settings.clone(),
-                step: 0,
-                adam_step: 0,
-                history: Vec::new(),
-                regime: regime.into(),
-                parent: a.init.as_ref().map(|p| p.display().to_string()),
-                data: corpus.info.clone(),
-                metrics: BTreeMap::new(),
-            };
+            let parent = a.init.as_ref().map(|p| p.display().to_string());
+            let s = new_state(cfg, &vocab, &settings, regime, parent, &corpus);
             (s, m, AdamW::new(a.lr, settings.weight_decay))
         }
         (None, None) => {
@@ -493,18 +483,7 @@ fn train(a: TrainArgs) -> Result<()> {
             cfg.validate("--d-model/--heads")
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
             let m = Gpt::new(cfg.clone(), a.dropout, &dev)?;
-            let s = CheckpointState {
-                config: cfg,
-                vocabulary: vocab.clone(),
-                settings: settings.clone(),
-                step: 0,
-                adam_step: 0,
-                history: Vec::new(),
-                regime: "scratch".into(),
-                parent: None,
-                data: corpus.info.clone(),
-                metrics: BTreeMap::new(),
-            };
+            let s = new_state(cfg, &vocab, &settings, "scratch", None, &corpus);
             (s, m, AdamW::new(a.lr, settings.weight_decay))
         }
     };
@@ -655,6 +634,29 @@ fn say(pb: &ProgressBar, line: String) {
         eprintln!("{line}");
     } else {
         pb.println(line);
+    }
+}
+
+/// The state of a run that has not taken a step yet.
+fn new_state(
+    config: ModelConfig,
+    vocab: &choreo::tokenize::vocab::Vocabulary,
+    settings: &RunSettings,
+    regime: &str,
+    parent: Option<String>,
+    corpus: &Corpus,
+) -> CheckpointState {
+    CheckpointState {
+        config,
+        vocabulary: vocab.clone(),
+        settings: settings.clone(),
+        step: 0,
+        adam_step: 0,
+        history: Vec::new(),
+        regime: regime.into(),
+        parent,
+        data: corpus.info.clone(),
+        metrics: BTreeMap::new(),
     }
 }
 
