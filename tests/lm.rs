@@ -107,6 +107,21 @@ fn trained(cfg: ModelConfig, v: &Vocabulary) -> Gpt {
     model
 }
 
+/// model.onnx + manifest.json in a fresh temporary folder.
+fn export_to_temp(model: &Gpt, v: &Vocabulary) -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    export::export(
+        model,
+        v,
+        DataInfo::default(),
+        BTreeMap::new(),
+        serde_json::json!({}),
+        dir.path(),
+    )
+    .unwrap();
+    dir
+}
+
 #[test]
 fn exported_graph_matches_the_trainer_whole_and_incremental() {
     let v = vocab();
@@ -116,16 +131,7 @@ fn exported_graph_matches_the_trainer_whole_and_incremental() {
         (PosScheme::FrameSlot, Objective::Masked),
     ] {
         let model = trained(config(&v, pos, obj), &v);
-        let dir = tempfile::tempdir().unwrap();
-        export::export(
-            &model,
-            &v,
-            DataInfo::default(),
-            BTreeMap::new(),
-            serde_json::json!({}),
-            dir.path(),
-        )
-        .unwrap();
+        let dir = export_to_temp(&model, &v);
         let r = parity::check(&model, &v, dir.path(), 11).unwrap();
         eprintln!("{pos:?} {obj:?}: {r}");
         assert!(r.whole < 1e-4, "{r}");
@@ -140,16 +146,7 @@ fn exported_graph_matches_the_trainer_whole_and_incremental() {
 fn exported(pos: PosScheme) -> (tempfile::TempDir, Arc<LmSession>) {
     let v = vocab();
     let model = trained(config(&v, pos, Objective::Causal), &v);
-    let dir = tempfile::tempdir().unwrap();
-    export::export(
-        &model,
-        &v,
-        DataInfo::default(),
-        BTreeMap::new(),
-        serde_json::json!({}),
-        dir.path(),
-    )
-    .unwrap();
+    let dir = export_to_temp(&model, &v);
     let s = Arc::new(LmSession::load(dir.path()).unwrap());
     (dir, s)
 }

@@ -131,7 +131,7 @@ impl Choreo for ChoreoGrpc {
         req: Request<pb::GenerateRequest>,
     ) -> Result<Response<FrameStream>, Status> {
         let p = generate_params(req.into_inner())?;
-        let (skeleton, fps, _) = super::lm::stream_format(&self.state)?;
+        let (skeleton, fps) = super::lm::stream_format(&self.state)?;
         let rx = super::lm::generate_stream(&self.state, p)?;
         let out = tokio_stream::wrappers::ReceiverStream::new(rx).map(move |r| {
             r.map(|f| frame_pb(&f, &skeleton, fps))
@@ -148,7 +148,7 @@ impl Choreo for ChoreoGrpc {
         let first = inbound.message().await?.ok_or_else(|| {
             Status::invalid_argument("duet: the stream ended before its set-up message")
         })?;
-        let (skeleton, fps, _) = super::lm::stream_format(&self.state)?;
+        let (skeleton, fps) = super::lm::stream_format(&self.state)?;
         let labels = first.labels.clone().into_iter().collect();
         let mut session = super::lm::DuetSession::open(
             &self.state,

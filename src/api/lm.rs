@@ -6,13 +6,15 @@ use crate::lm::{
     classify as lm_classify, forced_frames, prompt_slots, FrameDecoder, Generator, LmError,
     LmSession, Sampling,
 };
-use crate::motion::{Labels, Motion, Skeleton};
+use crate::motion::{Labels, Motion};
 use std::sync::Arc;
 use std::time::Instant;
 use tokio::sync::mpsc;
 
 /// Longest generation in one request, in frames (two minutes at 20 fps).
 pub const MAX_GENERATE_FRAMES: usize = 2400;
+/// Windows a classification reads at most (spread over the clip).
+pub const MAX_CLASSIFY_WINDOWS: usize = 32;
 /// Frames generated when the request names no length and no prompt.
 pub const DEFAULT_GENERATE_FRAMES: usize = 100;
 
@@ -184,10 +186,10 @@ pub struct StreamFrame {
 }
 
 /// The model's skeleton and frame rate, for streamed frames.
-pub fn stream_format(state: &AppState) -> Result<(String, f64, Vec<String>), ApiError> {
+pub fn stream_format(state: &AppState) -> Result<(String, f64), ApiError> {
     let s = model(state)?;
     let v = &s.manifest.vocabulary;
-    Ok((v.skeleton.clone(), v.fps, v.joints.clone()))
+    Ok((v.skeleton.clone(), v.fps))
 }
 
 /// Streaming generation: frames arrive on the channel as soon as each is
@@ -236,6 +238,8 @@ pub struct DuetSession {
     gen: Generator,
     slots: Vec<bool>,
     prev: Option<Motion>,
+    /// The lowest floor seen so far (heights are tokenized against it).
+    floor: Option<f64>,
     dec: FrameDecoder,
     pub frames: usize,
     _permit: tokio::sync::OwnedSemaphorePermit,
@@ -267,6 +271,7 @@ impl DuetSession {
             gen,
             slots,
             prev: None,
+            floor: None,
             dec: FrameDecoder::new(),
             frames: 0,
             _permit: permit,
@@ -309,7 +314,8 @@ impl DuetSession {
             }
             _ => frame.clone(),
         };
-        let tokens = vocab.encode_motion(&pair)?;
+        let (tokens, floor) = vocab.encode_motion_on_floor(&pair, self.floor)?;
+        self.floor = Some(floor);
         let fl = vocab.frame_len();
         let last = &tokens[tokens.len() - fl..];
         let forced = forced_frames(last, &self.slots).pop().unwrap_or_default();
@@ -336,16 +342,7 @@ pub async fn classify(state: &AppState, motion: MotionInput) -> Result<Classes, 
     state
         .heavy("classify", move || {
             let tokens = session.manifest.vocabulary.encode_motion(&m)?;
-            Ok(lm_classify(&session, &tokens, 32)?)
+            Ok(lm_classify(&session, &tokens, MAX_CLASSIFY_WINDOWS)?)
         })
         .await
-}
-
-/// A one-frame motion from wire parts (for duet messages).
-pub fn skeleton_by_name(name: &str) -> Option<Skeleton> {
-    match name {
-        "smpl24" | "" => Some(Skeleton::smpl24()),
-        "smpl13" => Some(Skeleton::smpl13()),
-        _ => None,
-    }
 }

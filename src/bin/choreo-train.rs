@@ -487,9 +487,6 @@ fn train(a: TrainArgs) -> Result<()> {
             (s, m, AdamW::new(a.lr, settings.weight_decay))
         }
     };
-    if !state.settings.steps.eq(&settings.steps) && state.step == 0 {
-        state.settings = settings.clone();
-    }
     let s = state.settings.clone();
     eprintln!(
         "model: {} parameters, d_model {}, {} layers, {} heads, window {} frames ({} tokens), {:?} positions, {:?}; regime {}",

@@ -232,7 +232,8 @@ impl Generator {
 
     /// Feeds whatever is pending (prefix and/or frame tokens) in one step.
     fn flush(&mut self) -> Result<(), LmError> {
-        let cfg = self.cfg().clone();
+        let session = self.session.clone();
+        let cfg = session.config();
         let pl = self.prefix.len();
         let mut toks = Vec::new();
         let mut pos = Vec::new();
@@ -246,7 +247,7 @@ impl Generator {
         if toks.is_empty() {
             return Ok(());
         }
-        let kv = std::mem::replace(&mut self.kv, Kv::empty(&cfg));
+        let kv = std::mem::replace(&mut self.kv, Kv::empty(cfg));
         let (out, kv) = self.session.step(&toks, &pos, kv)?;
         self.kv = kv;
         let v = cfg.vocab_size;
@@ -258,11 +259,12 @@ impl Generator {
 
     /// Drops the oldest half of a full window and re-encodes the rest.
     fn slide(&mut self) {
-        let cfg = self.cfg().clone();
+        let session = self.session.clone();
+        let cfg = session.config();
         let keep = (cfg.max_frames / 2).max(1) * cfg.frame_len;
         let cut = self.window.len() - keep;
         self.window.drain(..cut);
-        self.kv = Kv::empty(&cfg);
+        self.kv = Kv::empty(cfg);
         self.prefix_pending = true;
         self.pending = self.window.len();
     }

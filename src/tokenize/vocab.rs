@@ -364,10 +364,23 @@ impl Vocabulary {
     /// The frames of a motion as tokens (`frames × 43`, each frame ending in
     /// `<sep>`), no prefix.
     pub fn encode_motion(&self, m: &Motion) -> Result<Vec<u32>, MotionError> {
+        self.encode_motion_on_floor(m, None).map(|(t, _)| t)
+    }
+
+    /// [`Vocabulary::encode_motion`] with the floor given (a live stream
+    /// only sees a few frames at a time, so it keeps the lowest floor seen
+    /// so far) or, when `None`, the clip's own. Returns the tokens and the
+    /// floor used (the lower of the given one and this clip's).
+    pub fn encode_motion_on_floor(
+        &self,
+        m: &Motion,
+        floor: Option<f64>,
+    ) -> Result<(Vec<u32>, f64), MotionError> {
         let m = self.prepare(m)?;
         let j = m.joints();
         let pos = m.positions();
-        let floor = pos.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
+        let own = pos.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
+        let floor = floor.map_or(own, |f| f.min(own));
         let o = m.skeleton.offsets[0];
         let root = |t: usize| -> Vec3 {
             let tr = m.trans[t];
@@ -387,7 +400,7 @@ impl Vocabulary {
             out.push(hb.encode(p[1] - floor));
             out.push(self.sep());
         }
-        Ok(out)
+        Ok((out, floor))
     }
 
     /// The root's ground-plane velocity (x, z, m/s) a frame's tokens carry.
@@ -499,6 +512,29 @@ mod tests {
             .map(|f| [f as f64 / 20.0 - o[0], 0.9 - o[1], -o[2]])
             .collect();
         Motion::new("walk", 20.0, sk, trans, rots, Labels::new()).unwrap()
+    }
+
+    #[test]
+    fn a_given_floor_moves_heights_and_nothing_else() {
+        let v = vocab();
+        let m = walk(10);
+        let (own, floor) = v.encode_motion_on_floor(&m, None).unwrap();
+        assert_eq!(own, v.encode_motion(&m).unwrap());
+        // A floor 0.5 m lower: every height token rises by 0.5 m of bins,
+        // every other slot is unchanged; a higher floor is ignored.
+        let (low, used) = v.encode_motion_on_floor(&m, Some(floor - 0.5)).unwrap();
+        assert!((used - (floor - 0.5)).abs() < 1e-12);
+        let step = (v.height_range[1] - v.height_range[0]) / v.bins as f64;
+        let fl = v.frame_len();
+        for (i, (a, b)) in own.iter().zip(&low).enumerate() {
+            if i % fl == fl - 2 {
+                assert_eq!(*b as f64 - *a as f64, (0.5 / step).round(), "slot {i}");
+            } else {
+                assert_eq!(a, b, "slot {i}");
+            }
+        }
+        let (high, used) = v.encode_motion_on_floor(&m, Some(floor + 1.0)).unwrap();
+        assert_eq!((high, used), (own, floor));
     }
 
     #[test]

@@ -3,6 +3,7 @@
 //! augmentation; windows and batches.
 
 use crate::lm::manifest::{sha256_hex, DataInfo};
+use crate::lm::runtime::attention_bias;
 use crate::lm::{ModelConfig, Objective};
 use crate::motion::io::{self, ReadOptions};
 use crate::motion::labels::from_name;
@@ -144,21 +145,26 @@ pub fn build(
     mirror: bool,
     mut info: DataInfo,
 ) -> Result<Corpus> {
-    let mut by: BTreeMap<String, Vec<(String, crate::motion::Motion)>> = BTreeMap::new();
+    let mut by: BTreeMap<String, Vec<crate::motion::Motion>> = BTreeMap::new();
     for (c, m) in motions {
-        by.entry(c).or_default().push((c_clone(&m.name), m));
+        by.entry(c).or_default().push(m);
     }
     let (mut train, mut val) = (Vec::new(), Vec::new());
     for (corpus, mut list) in by {
-        list.sort_by_key(|(n, _)| sha256_hex(n.as_bytes()));
+        list.sort_by_key(|m| sha256_hex(m.name.as_bytes()));
         let n_val = if list.len() < 2 {
             0
         } else {
             ((list.len() as f64 * val_fraction).round() as usize).clamp(1, list.len() - 1)
         };
-        for (i, (name, m)) in list.into_iter().enumerate() {
+        for (i, m) in list.into_iter().enumerate() {
+            let name = m.name.clone();
+            // Retarget / resample once; the tokens and the mirror share it.
+            let prepared = vocab
+                .prepare(&m)
+                .with_context(|| format!("tokenizing {name}"))?;
             let tokens = vocab
-                .encode_motion(&m)
+                .encode_motion(&prepared)
                 .with_context(|| format!("tokenizing {name}"))?;
             if tokens.is_empty() {
                 continue;
@@ -167,11 +173,7 @@ pub fn build(
             let mirrored = if mirror && !held {
                 // Mirrored on the vocabulary's skeleton (SMPL is symmetric; a BVH
                 // rest pose often is not).
-                match vocab
-                    .prepare(&m)
-                    .and_then(|p| p.mirror())
-                    .and_then(|mm| vocab.encode_motion(&mm))
-                {
+                match prepared.mirror().and_then(|mm| vocab.encode_motion(&mm)) {
                     Ok(t) => Some(t),
                     Err(e) => {
                         eprintln!("no mirror for {name}: {e}");
@@ -205,10 +207,6 @@ pub fn build(
         .map(|s| s.tokens.len() + s.mirrored.as_ref().map_or(0, |m| m.len()))
         .sum();
     Ok(Corpus { train, val, info })
-}
-
-fn c_clone(s: &str) -> String {
-    s.to_string()
 }
 
 /// One training or evaluation example before batching.
@@ -334,7 +332,8 @@ pub fn batch(
         vec![0u32; b * t],
     );
     let (mut tg, mut w) = (vec![0u32; b * t], vec![0f32; b * t]);
-    let mut bias = vec![0f32; b * t * t];
+    // Masked models see every real token of their own example (pads hidden).
+    let mut key_mask = vec![0f32; b * t];
     let mut cls: Vec<(Vec<u32>, Vec<u32>)> = vec![(Vec::new(), Vec::new()); cfg.classes.len()];
     let mut n_targets = 0;
     for (i, e) in exs.iter().enumerate() {
@@ -349,17 +348,8 @@ pub fn batch(
                 n_targets += 1;
             }
         }
-        let len = e.tokens.len();
-        for q in 0..t {
-            for k in 0..t {
-                let blocked = match cfg.objective {
-                    Objective::Causal => k > q,
-                    Objective::Masked => k >= len,
-                };
-                if blocked {
-                    bias[(i * t + q) * t + k] = -1e9;
-                }
-            }
+        for k in e.tokens.len()..t {
+            key_mask[i * t + k] = -1e9;
         }
         for &(ci, row, idx) in &e.classes {
             cls[ci].0.push((i * t + row) as u32);
@@ -387,7 +377,14 @@ pub fn batch(
         } else {
             None
         },
-        bias: Tensor::from_vec(bias, (b, 1, t, t), dev)?,
+        // Causal: one mask shared by the batch, the runtime's own (pads sit
+        // after every real token, so none is ever seen).
+        bias: match cfg.objective {
+            Objective::Causal => {
+                Tensor::from_vec(attention_bias(Objective::Causal, 0, t), (1, 1, t, t), dev)?
+            }
+            Objective::Masked => Tensor::from_vec(key_mask, (b, 1, 1, t), dev)?,
+        },
         targets: Tensor::from_vec(tg, b * t, dev)?,
         weights: Tensor::from_vec(w, b * t, dev)?,
         classes,

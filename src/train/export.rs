@@ -139,8 +139,8 @@ pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
     let cfg = &model.cfg;
     let w = weights(model)?;
     let mut g = Builder::default();
-    for (name, (dims, data)) in &w {
-        g.f32(name, dims, data.clone());
+    for (name, (dims, data)) in w {
+        g.f32(&name, &dims, data);
     }
     let (d, h, dh) = (cfg.d_model as i64, cfg.n_heads as i64, cfg.d_head() as i64);
     let shape_heads = g.i64("shape_heads", &[0, 0, h, dh]);

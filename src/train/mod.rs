@@ -11,7 +11,7 @@ pub mod parity;
 use crate::lm::{bits_per_frame, ModelConfig};
 use crate::tokenize::vocab::Vocabulary;
 use anyhow::{bail, Context, Result};
-use candle_core::{DType, Device, Tensor, D};
+use candle_core::{Device, Tensor, D};
 use data::{Batch, Corpus, Example, ExampleOptions};
 use model::{AdamW, Gpt};
 use rand::rngs::StdRng;
@@ -320,8 +320,4 @@ pub fn cumulative(corpus: &Corpus, fl: usize) -> Vec<usize> {
 
 pub fn device() -> Device {
     Device::Cpu
-}
-
-pub fn dtype() -> DType {
-    DType::F32
 }
