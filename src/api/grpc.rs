@@ -183,14 +183,24 @@ impl Choreo for ChoreoGrpc {
                 })();
                 let out = match motion {
                     Ok(m) => {
-                        let (s, r) = tokio::task::spawn_blocking(move || {
+                        let joined = tokio::task::spawn_blocking(move || {
                             let r = session.step(m);
                             (session, r)
                         })
-                        .await
-                        .expect("duet step does not panic");
-                        session = s;
-                        r
+                        .await;
+                        match joined {
+                            Ok((s, r)) => {
+                                session = s;
+                                r
+                            }
+                            // A failed step takes the session with it: say so, end the duet.
+                            Err(e) => {
+                                let _ = tx
+                                    .send(Err(Status::internal(format!("duet step failed: {e}"))))
+                                    .await;
+                                break;
+                            }
+                        }
                     }
                     Err(e) => Err(e),
                 };
