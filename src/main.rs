@@ -134,6 +134,10 @@ enum Cmd {
         /// KIND=VALUE added to every motion ingested now (repeatable).
         #[arg(long)]
         label: Vec<String>,
+        /// Keep each file's bytes in the database, so `get` / `export`
+        /// work after the files move (the store grows by their size).
+        #[arg(long)]
+        keep_files: bool,
         #[arg(long)]
         json: bool,
     },
@@ -532,10 +536,17 @@ fn run(cli: Cli) -> Result<()> {
             db,
             hop,
             label,
+            keep_files,
             json,
         } => {
             let labels = parse_pairs("--label", &label)?.into_iter().collect();
-            runtime()?.block_on(ingest(paths, db, hop, labels, json))
+            let opts = IngestOptions {
+                hop,
+                extra_labels: labels,
+                keep_files,
+                ..Default::default()
+            };
+            runtime()?.block_on(ingest(paths, db, opts, json))
         }
         Cmd::Query {
             db,
@@ -709,14 +720,8 @@ fn parse_pairs(flag: &str, items: &[String]) -> Result<Vec<(String, String)>> {
         .collect()
 }
 
-async fn ingest(
-    paths: Vec<PathBuf>,
-    db: PathBuf,
-    hop: usize,
-    extra_labels: choreo::motion::Labels,
-    json: bool,
-) -> Result<()> {
-    if hop == 0 {
+async fn ingest(paths: Vec<PathBuf>, db: PathBuf, opts: IngestOptions, json: bool) -> Result<()> {
+    if opts.hop == 0 {
         bail!("--hop must be at least 1");
     }
     let store = Store::open(&db).await?;
@@ -728,11 +733,6 @@ async fn ingest(
         )
         .expect("template"),
     );
-    let opts = IngestOptions {
-        hop,
-        extra_labels,
-        ..Default::default()
-    };
     let progress = |done: usize, _total: usize, file: &str| {
         bar.set_position(done as u64);
         bar.set_message(file.rsplit('/').next().unwrap_or(file).to_string());

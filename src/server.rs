@@ -41,6 +41,10 @@ pub struct ServeConfig {
     /// classify answer 503; a broken model stops start-up.
     #[arg(long, env = "CHOREO_MODEL", default_value = "models/default")]
     pub model: PathBuf,
+    /// Bearer token that writes (ingest, delete) must present; without one
+    /// writes are refused (403 / PERMISSION_DENIED).
+    #[arg(long, env = "CHOREO_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
 }
 
 /// A running server.
@@ -114,13 +118,16 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         );
         None
     };
-    let state = Arc::new(AppState {
+    if cfg.token.as_deref().is_none_or(str::is_empty) {
+        eprintln!("no --token (CHOREO_TOKEN): ingest and delete are switched off");
+    }
+    let state = Arc::new(AppState::new(
         store,
         searcher,
+        cfg.workers,
         model,
-        metrics: Default::default(),
-        workers: Arc::new(tokio::sync::Semaphore::new(cfg.workers.max(1))),
-    });
+        cfg.token.clone(),
+    ));
     let max = cfg.max_body_mb.max(1) << 20;
     let http_l = tokio::net::TcpListener::bind((cfg.bind.as_str(), cfg.http_port))
         .await

@@ -50,6 +50,7 @@ fn source(field: &str, s: Option<pb::MotionSource>) -> Result<MotionInput, ApiEr
             name: f.name,
             bytes: f.content,
         }),
+        Some(pb::motion_source::Source::Id(id)) => Ok(MotionInput::Stored(id)),
         None => Err(ApiError::invalid(field, "missing")),
     }
 }
@@ -132,7 +133,7 @@ impl Choreo for ChoreoGrpc {
     ) -> Result<Response<FrameStream>, Status> {
         let p = generate_params(req.into_inner())?;
         let (skeleton, fps) = super::lm::stream_format(&self.state)?;
-        let rx = super::lm::generate_stream(&self.state, p)?;
+        let rx = super::lm::generate_stream(&self.state, p).await?;
         let out = tokio_stream::wrappers::ReceiverStream::new(rx).map(move |r| {
             r.map(|f| frame_pb(&f, &skeleton, fps))
                 .map_err(Status::from)
@@ -349,18 +350,82 @@ impl Choreo for ChoreoGrpc {
     ) -> Result<Response<pb::ListMotionsResponse>, Status> {
         let rows = super::list_motions(&self.state).await?;
         Ok(Response::new(pb::ListMotionsResponse {
-            motions: rows
-                .into_iter()
-                .map(|r| pb::MotionSummary {
-                    id: r.id,
-                    source_path: r.source_path,
-                    format: r.format,
-                    fps: r.fps,
-                    frames: r.frames,
-                    labels: r.labels.into_iter().collect(),
-                })
-                .collect(),
+            motions: rows.into_iter().map(summary_pb).collect(),
         }))
+    }
+
+    async fn ingest_motion(
+        &self,
+        req: Request<pb::IngestRequest>,
+    ) -> Result<Response<pb::IngestResponse>, Status> {
+        self.state.authorize_write(bearer(&req))?;
+        let r = req.into_inner();
+        let stored = super::ingest(
+            &self.state,
+            source("motion", r.motion)?,
+            r.labels.into_iter().collect(),
+        )
+        .await?;
+        Ok(Response::new(match stored {
+            super::Stored::New { motion_id, windows } => pb::IngestResponse {
+                motion_id,
+                created: true,
+                windows: windows as u32,
+            },
+            super::Stored::Existing { motion_id } => pb::IngestResponse {
+                motion_id,
+                created: false,
+                windows: 0,
+            },
+        }))
+    }
+
+    async fn get_motion(
+        &self,
+        req: Request<pb::MotionId>,
+    ) -> Result<Response<pb::GetMotionResponse>, Status> {
+        let (row, m) = super::get_motion(&self.state, req.into_inner().id).await?;
+        Ok(Response::new(pb::GetMotionResponse {
+            summary: Some(summary_pb(row)),
+            motion: Some(motion_pb(&m)),
+        }))
+    }
+
+    async fn export_motion(
+        &self,
+        req: Request<pb::MotionId>,
+    ) -> Result<Response<pb::ExportMotionResponse>, Status> {
+        let bvh = super::export_bvh(&self.state, req.into_inner().id).await?;
+        Ok(Response::new(pb::ExportMotionResponse { bvh }))
+    }
+
+    async fn delete_motion(
+        &self,
+        req: Request<pb::MotionId>,
+    ) -> Result<Response<pb::DeleteMotionResponse>, Status> {
+        self.state.authorize_write(bearer(&req))?;
+        super::delete_motion(&self.state, req.into_inner().id).await?;
+        Ok(Response::new(pb::DeleteMotionResponse {}))
+    }
+}
+
+fn bearer<T>(req: &Request<T>) -> Option<&str> {
+    req.metadata()
+        .get("authorization")
+        .and_then(|v| v.to_str().ok())
+}
+
+fn summary_pb(r: crate::store::MotionRow) -> pb::MotionSummary {
+    pb::MotionSummary {
+        id: r.id,
+        source_path: r.source_path,
+        format: r.format,
+        fps: r.fps,
+        frames: r.frames,
+        labels: r.labels.into_iter().collect(),
+        joints: r.joints,
+        skeleton: r.skeleton,
+        duration_s: r.duration_s,
     }
 }
 

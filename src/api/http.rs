@@ -2,46 +2,23 @@
 //! operation of [`super`].
 
 use super::{ApiError, AppState, InterpolateParams, KeyframesParams, MotionInput, QueryParams};
-use crate::motion::{Labels, Motion};
-use axum::extract::rejection::JsonRejection;
-use axum::extract::{DefaultBodyLimit, State};
-use axum::http::StatusCode;
+use crate::motion::Labels;
+use axum::extract::rejection::{JsonRejection, PathRejection};
+use axum::extract::{DefaultBodyLimit, Path, State};
+use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use base64::Engine;
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 use serde_json::json;
 use std::sync::Arc;
 
-/// A motion as JSON: `rotations` is `[frames][joints][3]` axis-angle,
-/// `translation` `[frames][3]` metres.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct MotionJson {
-    pub fps: f64,
-    #[serde(default)]
-    pub skeleton: String,
-    pub rotations: Vec<Vec<[f64; 3]>>,
-    pub translation: Vec<[f64; 3]>,
-    #[serde(default)]
-    pub labels: Labels,
-    #[serde(default)]
-    pub name: String,
-}
+pub use crate::motion::io::json::MotionJson;
 
-impl MotionJson {
-    pub fn from_motion(m: &Motion) -> MotionJson {
-        let j = m.joints();
-        MotionJson {
-            fps: m.fps,
-            skeleton: m.skeleton.kind.clone(),
-            rotations: m.rotations.chunks(j).map(|c| c.to_vec()).collect(),
-            translation: m.trans.clone(),
-            labels: m.labels.clone(),
-            name: m.name.clone(),
-        }
-    }
-}
+/// The REST API's OpenAPI 3.1 description (checked in; a test holds it to
+/// the router).
+pub const OPENAPI: &str = include_str!("../../openapi.json");
 
 #[derive(Clone, Debug, Deserialize)]
 pub struct FileJson {
@@ -50,17 +27,20 @@ pub struct FileJson {
     pub content_base64: String,
 }
 
-/// Exactly one of `motion` (inline) or `file` (an upload, base64).
+/// Exactly one of `motion` (inline), `file` (an upload, base64) or `id` (a
+/// stored motion).
 #[derive(Clone, Debug, Default, Deserialize)]
 pub struct SourceJson {
     pub motion: Option<MotionJson>,
     pub file: Option<FileJson>,
+    pub id: Option<i64>,
 }
 
 fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
     let s = s.ok_or_else(|| ApiError::invalid(field, "missing"))?;
-    match (s.motion, s.file) {
-        (Some(m), None) => {
+    match (s.motion, s.file, s.id) {
+        (None, None, Some(id)) => Ok(MotionInput::Stored(id)),
+        (Some(m), None, None) => {
             let joints = m.rotations.first().map_or(0, |r| r.len());
             if m.rotations.iter().any(|r| r.len() != joints) {
                 return Err(ApiError::invalid(
@@ -79,7 +59,7 @@ fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
                 m.labels,
             )?))
         }
-        (None, Some(f)) => {
+        (None, Some(f), None) => {
             let bytes = base64::engine::general_purpose::STANDARD
                 .decode(f.content_base64.as_bytes())
                 .map_err(|e| {
@@ -92,7 +72,7 @@ fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
         }
         _ => Err(ApiError::invalid(
             field,
-            "give exactly one of motion or file",
+            "give exactly one of motion, file or id",
         )),
     }
 }
@@ -257,13 +237,93 @@ async fn keyframes(
     Ok(Json(v))
 }
 
+fn summary(r: &crate::store::MotionRow) -> serde_json::Value {
+    json!({"id": r.id, "source_path": r.source_path, "format": r.format, "fps": r.fps,
+           "frames": r.frames, "joints": r.joints, "skeleton": r.skeleton,
+           "duration_s": r.duration_s, "labels": r.labels})
+}
+
 async fn list_motions(State(s): State<Arc<AppState>>) -> Result<Json<serde_json::Value>, ApiError> {
     let rows = super::list_motions(&s).await?;
-    let motions: Vec<serde_json::Value> = rows
-        .iter()
-        .map(|r| json!({"id": r.id, "source_path": r.source_path, "format": r.format, "fps": r.fps, "frames": r.frames, "labels": r.labels}))
-        .collect();
+    let motions: Vec<serde_json::Value> = rows.iter().map(summary).collect();
     Ok(Json(json!({ "motions": motions })))
+}
+
+fn bearer(h: &HeaderMap) -> Option<&str> {
+    h.get(axum::http::header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+}
+
+#[derive(Deserialize)]
+pub struct IngestBody {
+    pub motion: Option<SourceJson>,
+    #[serde(default)]
+    pub labels: Labels,
+}
+
+async fn ingest(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    b: Result<Json<IngestBody>, JsonRejection>,
+) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
+    s.authorize_write(bearer(&headers))?;
+    let b = body(b)?;
+    let stored = super::ingest(&s, source("motion", b.motion)?, b.labels).await?;
+    let status = match stored {
+        super::Stored::New { .. } => StatusCode::CREATED,
+        super::Stored::Existing { .. } => StatusCode::OK,
+    };
+    Ok((
+        status,
+        Json(serde_json::to_value(stored).map_err(super::internal)?),
+    ))
+}
+
+fn motion_id(p: Result<Path<i64>, PathRejection>) -> Result<i64, ApiError> {
+    p.map(|Path(id)| id)
+        .map_err(|e| ApiError::invalid("id", e.body_text()))
+}
+
+async fn get_motion(
+    State(s): State<Arc<AppState>>,
+    id: Result<Path<i64>, PathRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let (row, m) = super::get_motion(&s, motion_id(id)?).await?;
+    Ok(Json(
+        json!({ "motion": summary(&row), "data": MotionJson::from_motion(&m) }),
+    ))
+}
+
+async fn export_motion(
+    State(s): State<Arc<AppState>>,
+    id: Result<Path<i64>, PathRejection>,
+) -> Result<Response, ApiError> {
+    let id = motion_id(id)?;
+    let text = super::export_bvh(&s, id).await?;
+    Ok((
+        [
+            (
+                axum::http::header::CONTENT_TYPE,
+                "text/plain; charset=utf-8".to_string(),
+            ),
+            (
+                axum::http::header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"motion-{id}.bvh\""),
+            ),
+        ],
+        text,
+    )
+        .into_response())
+}
+
+async fn delete_motion(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    id: Result<Path<i64>, PathRejection>,
+) -> Result<StatusCode, ApiError> {
+    s.authorize_write(bearer(&headers))?;
+    super::delete_motion(&s, motion_id(id)?).await?;
+    Ok(StatusCode::NO_CONTENT)
 }
 
 /// Sampling settings as JSON (all optional: greedy by default).
@@ -397,7 +457,18 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         .route("/v1/keyframes", post(keyframes))
         .route("/v1/generate", post(generate))
         .route("/v1/classify", post(classify))
-        .route("/v1/motions", get(list_motions))
+        .route("/v1/motions", get(list_motions).post(ingest))
+        .route("/v1/motions/{id}", get(get_motion).delete(delete_motion))
+        .route("/v1/motions/{id}/bvh", get(export_motion))
+        .route(
+            "/openapi.json",
+            get(|| async {
+                (
+                    [(axum::http::header::CONTENT_TYPE, "application/json")],
+                    OPENAPI,
+                )
+            }),
+        )
         .layer(DefaultBodyLimit::max(max_body))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), track))
         .with_state(state)

@@ -1,7 +1,7 @@
 //! Generate, stream, duet and classify: the language-model operations both
 //! transports call.
 
-use super::{resolve, ApiError, AppState, MotionInput};
+use super::{ApiError, AppState, MotionInput};
 use crate::lm::{
     classify as lm_classify, forced_frames, prompt_slots, FrameDecoder, Generator, LmError,
     LmSession, Sampling,
@@ -83,7 +83,7 @@ impl GenerateJob {
 }
 
 /// Validates a request and sets the generation up (cheap: no model step).
-pub fn generate_job(state: &AppState, p: GenerateParams) -> Result<GenerateJob, ApiError> {
+pub async fn generate_job(state: &AppState, p: GenerateParams) -> Result<GenerateJob, ApiError> {
     let session = model(state)?;
     let vocab = &session.manifest.vocabulary;
     if p.frames > MAX_GENERATE_FRAMES {
@@ -103,7 +103,7 @@ pub fn generate_job(state: &AppState, p: GenerateParams) -> Result<GenerateJob, 
                     ),
                 ));
             }
-            let m = resolve("prompt", input)?;
+            let m = state.resolve("prompt", input).await?;
             let slots = prompt_slots(vocab, &p.prompt_joints)?;
             let tokens = vocab.encode_motion(&m)?;
             forced_frames(&tokens, &slots)
@@ -119,7 +119,7 @@ pub fn generate_job(state: &AppState, p: GenerateParams) -> Result<GenerateJob, 
         }
     };
     let seed = match p.seed_motion {
-        Some(input) => vocab.encode_motion(&resolve("seed_motion", input)?)?,
+        Some(input) => vocab.encode_motion(&state.resolve("seed_motion", input).await?)?,
         None => Vec::new(),
     };
     let frames = match (p.frames, forced.len()) {
@@ -152,7 +152,7 @@ pub async fn generate(
     state: &AppState,
     p: GenerateParams,
 ) -> Result<(Motion, GenerateReport), ApiError> {
-    let mut job = generate_job(state, p)?;
+    let mut job = generate_job(state, p).await?;
     state
         .heavy("generate", move || {
             let t0 = Instant::now();
@@ -195,11 +195,11 @@ pub fn stream_format(state: &AppState) -> Result<(String, f64), ApiError> {
 /// Streaming generation: frames arrive on the channel as soon as each is
 /// decoded. The worker holds a permit and stops when the receiver is
 /// dropped (the client went away).
-pub fn generate_stream(
+pub async fn generate_stream(
     state: &AppState,
     p: GenerateParams,
 ) -> Result<mpsc::Receiver<Result<StreamFrame, ApiError>>, ApiError> {
-    let mut job = generate_job(state, p)?;
+    let mut job = generate_job(state, p).await?;
     let permit = state
         .workers
         .clone()
@@ -338,7 +338,7 @@ pub type Classes = Vec<(String, Vec<(String, f64)>)>;
 
 pub async fn classify(state: &AppState, motion: MotionInput) -> Result<Classes, ApiError> {
     let session = model(state)?;
-    let m = resolve("motion", motion)?;
+    let m = state.resolve("motion", motion).await?;
     state
         .heavy("classify", move || {
             let tokens = session.manifest.vocabulary.encode_motion(&m)?;

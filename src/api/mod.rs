@@ -13,8 +13,12 @@ pub mod metrics;
 use crate::features::interpolate::{lowpass as lowpass_channels, to_f64, InterpolateOptions};
 use crate::features::{rows72, smpl24_at_60, Embedding};
 use crate::index::Metric;
+use crate::motion::io::bvh::{write_bvh, BvhWriteOptions};
+use crate::motion::io::json::write_json;
 use crate::motion::io::{read_bytes, ReadOptions};
-use crate::motion::{Labels, Motion, MotionError, Skeleton};
+use crate::motion::{Labels, Motion, MotionError};
+pub use crate::service::ingest::Stored;
+use crate::service::ingest::{ingest_bytes, load_motion, IngestOptions, LoadError};
 use crate::service::interpolate::{interpolate_motions, with_channels, InterpolateReport};
 use crate::service::keyframes::{
     reconstruct, Inbetween, KeyframeReport, KeyframeRequest, Music, Select,
@@ -42,6 +46,12 @@ pub enum ApiError {
     /// The capability is not loaded (no model).
     #[error("unavailable: {0}")]
     Unavailable(String),
+    /// A write without the right bearer token.
+    #[error("unauthenticated: {0}")]
+    Unauthenticated(String),
+    /// Writes are switched off (the server has no token).
+    #[error("permission denied: {0}")]
+    PermissionDenied(String),
     #[error("internal error: {0}")]
     Internal(String),
 }
@@ -60,6 +70,8 @@ impl ApiError {
             ApiError::NotFound(_) => 404,
             ApiError::Busy(_) => 429,
             ApiError::Unavailable(_) => 503,
+            ApiError::Unauthenticated(_) => 401,
+            ApiError::PermissionDenied(_) => 403,
             ApiError::Internal(_) => 500,
         }
     }
@@ -70,6 +82,8 @@ impl ApiError {
             ApiError::NotFound(_) => tonic::Code::NotFound,
             ApiError::Busy(_) => tonic::Code::ResourceExhausted,
             ApiError::Unavailable(_) => tonic::Code::Unavailable,
+            ApiError::Unauthenticated(_) => tonic::Code::Unauthenticated,
+            ApiError::PermissionDenied(_) => tonic::Code::PermissionDenied,
             ApiError::Internal(_) => tonic::Code::Internal,
         }
     }
@@ -79,6 +93,8 @@ impl ApiError {
             ApiError::NotFound(_) => "not_found",
             ApiError::Busy(_) => "resource_exhausted",
             ApiError::Unavailable(_) => "unavailable",
+            ApiError::Unauthenticated(_) => "unauthenticated",
+            ApiError::PermissionDenied(_) => "permission_denied",
             ApiError::Internal(_) => "internal",
         }
     }
@@ -116,11 +132,17 @@ impl From<QueryError> for ApiError {
 /// Where a request's motion comes from.
 pub enum MotionInput {
     Inline(Motion),
-    File { name: String, bytes: Vec<u8> },
+    File {
+        name: String,
+        bytes: Vec<u8>,
+    },
+    /// A stored motion, by id.
+    Stored(i64),
 }
 
 /// A motion from flat arrays (`rotations`: frames × joints × 3,
-/// `translation`: frames × 3) on a named SMPL skeleton.
+/// `translation`: frames × 3) on a named SMPL skeleton; errors name
+/// `field.<part>`.
 pub fn motion_from_parts(
     field: &str,
     name: &str,
@@ -130,35 +152,17 @@ pub fn motion_from_parts(
     translation: Vec<[f64; 3]>,
     labels: Labels,
 ) -> Result<Motion, ApiError> {
-    let sk = match skeleton {
-        "smpl24" | "" => Skeleton::smpl24(),
-        "smpl13" => Skeleton::smpl13(),
-        other => {
-            return Err(ApiError::invalid(
-                format!("{field}.skeleton"),
-                format!("'{other}' is not smpl24 or smpl13 (upload other skeletons as a file)"),
-            ))
-        }
-    };
-    let frames = translation.len();
-    if frames == 0 {
-        return Err(ApiError::invalid(
-            format!("{field}.translation"),
-            "no frames",
-        ));
-    }
-    if rotations.len() != frames * sk.len() {
-        return Err(ApiError::invalid(
-            format!("{field}.rotations"),
-            format!(
-                "{} rotations for {frames} frames × {} joints",
-                rotations.len(),
-                sk.len()
-            ),
-        ));
-    }
     let name = if name.is_empty() { "request" } else { name };
-    Motion::new(name, fps, sk, translation, rotations, labels).map_err(|e| prefix(field, e.into()))
+    crate::motion::io::json::motion_from_parts(
+        name,
+        name,
+        fps,
+        skeleton,
+        rotations,
+        translation,
+        labels,
+    )
+    .map_err(|e| prefix(field, e.into()))
 }
 
 fn prefix(field: &str, e: ApiError) -> ApiError {
@@ -171,7 +175,8 @@ fn prefix(field: &str, e: ApiError) -> ApiError {
     }
 }
 
-/// The motion of an input, checked against the duration limit.
+/// The motion of an inline or uploaded input, checked against the duration
+/// limit ([`AppState::resolve`] also reads stored motions).
 pub fn resolve(field: &str, input: MotionInput) -> Result<Motion, ApiError> {
     let m = match input {
         MotionInput::Inline(m) => m,
@@ -185,20 +190,46 @@ pub fn resolve(field: &str, input: MotionInput) -> Result<Motion, ApiError> {
                 .map_err(|e| prefix(field, e.into()))?
                 .motion
         }
+        MotionInput::Stored(id) => {
+            return Err(ApiError::Internal(format!(
+                "{field}: stored motion {id} read without the store"
+            )))
+        }
     };
+    check_duration(field, &m)?;
+    Ok(m)
+}
+
+fn check_duration(field: &str, m: &Motion) -> Result<(), ApiError> {
     if m.duration_s() > MAX_SECONDS {
         return Err(ApiError::invalid(
             format!("{field}.frames"),
             format!("{:.1} s is over the {MAX_SECONDS} s limit", m.duration_s()),
         ));
     }
-    Ok(m)
+    Ok(())
+}
+
+impl From<LoadError> for ApiError {
+    fn from(e: LoadError) -> Self {
+        match e {
+            LoadError::Motion(m) => m.into(),
+            other => ApiError::Internal(other.to_string()),
+        }
+    }
 }
 
 /// Shared server state.
 pub struct AppState {
     pub store: Store,
-    pub searcher: Searcher,
+    /// The searcher over the store as of its last refresh (swapped after
+    /// every write).
+    pub searcher: std::sync::RwLock<Arc<Searcher>>,
+    /// Serialises writes (ingest, delete) and the searcher refresh after
+    /// them.
+    pub writes: tokio::sync::Mutex<()>,
+    /// The bearer token writes need; `None` switches writes off.
+    pub token: Option<String>,
     /// Permits for CPU-heavy requests (interpolate, lowpass, keyframes,
     /// generate, classify; a stream holds one for its whole life).
     pub workers: Arc<Semaphore>,
@@ -209,6 +240,86 @@ pub struct AppState {
 }
 
 impl AppState {
+    pub fn new(
+        store: Store,
+        searcher: Searcher,
+        workers: usize,
+        model: Option<Arc<crate::lm::LmSession>>,
+        token: Option<String>,
+    ) -> AppState {
+        AppState {
+            store,
+            searcher: std::sync::RwLock::new(Arc::new(searcher)),
+            writes: tokio::sync::Mutex::new(()),
+            token: token.filter(|t| !t.is_empty()),
+            workers: Arc::new(Semaphore::new(workers.max(1))),
+            model,
+            metrics: Default::default(),
+        }
+    }
+
+    /// The current searcher.
+    pub fn searcher(&self) -> Arc<Searcher> {
+        self.searcher.read().expect("searcher lock").clone()
+    }
+
+    /// The motion of any input (stored ones read from the store), checked
+    /// against the duration limit.
+    pub async fn resolve(&self, field: &str, input: MotionInput) -> Result<Motion, ApiError> {
+        match input {
+            MotionInput::Stored(id) => {
+                let (_, m) = load_motion(&self.store, id)
+                    .await
+                    .map_err(|e| prefix(field, e.into()))?
+                    .ok_or_else(|| {
+                        ApiError::invalid(format!("{field}.id"), format!("no stored motion {id}"))
+                    })?;
+                check_duration(field, &m)?;
+                Ok(m)
+            }
+            other => resolve(field, other),
+        }
+    }
+
+    /// A write may go ahead: the server has a token and `presented` (the
+    /// `Authorization` header or gRPC metadata) is `Bearer <token>`.
+    pub fn authorize_write(&self, presented: Option<&str>) -> Result<(), ApiError> {
+        let Some(token) = &self.token else {
+            return Err(ApiError::PermissionDenied(
+                "writes are switched off: start the server with --token (CHOREO_TOKEN)".into(),
+            ));
+        };
+        let given = presented
+            .and_then(|h| {
+                h.strip_prefix("Bearer ")
+                    .or_else(|| h.strip_prefix("bearer "))
+            })
+            .map(str::trim);
+        match given {
+            None => Err(ApiError::Unauthenticated(
+                "this write needs the header `Authorization: Bearer <token>`".into(),
+            )),
+            Some(g) if constant_time_eq(g.as_bytes(), token.as_bytes()) => Ok(()),
+            Some(_) => Err(ApiError::Unauthenticated(
+                "the bearer token is wrong".into(),
+            )),
+        }
+    }
+
+    /// Reopen the searcher on the store as it is now (refits the PCA basis
+    /// when the windows changed). Call with `writes` held.
+    async fn refresh_searcher(&self) -> Result<(), ApiError> {
+        let current = self.searcher();
+        if current.generation() == self.store.generation().await.map_err(internal)? {
+            return Ok(());
+        }
+        let s = Searcher::open(self.store.clone(), current.params())
+            .await
+            .map_err(internal)?;
+        *self.searcher.write().expect("searcher lock") = Arc::new(s);
+        Ok(())
+    }
+
     /// Run CPU work on the blocking pool under a worker permit; no permit
     /// free → [`ApiError::Busy`] at once.
     pub async fn heavy<T: Send + 'static>(
@@ -243,7 +354,7 @@ pub struct QueryParams {
 }
 
 pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, ApiError> {
-    let motion = resolve("motion", p.motion)?;
+    let motion = state.resolve("motion", p.motion).await?;
     let embedding = match p.embedding.as_str() {
         "" => Embedding::Stft,
         e => Embedding::parse(e).ok_or_else(|| {
@@ -269,7 +380,7 @@ pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, Ap
         filters: p.filters,
         exact: p.exact,
     };
-    Ok(state.searcher.query(&req).await?)
+    Ok(state.searcher().query(&req).await?)
 }
 
 pub struct InterpolateParams {
@@ -286,8 +397,8 @@ pub async fn interpolate(
     state: &AppState,
     p: InterpolateParams,
 ) -> Result<(Motion, InterpolateReport), ApiError> {
-    let a = resolve("input", p.input)?;
-    let b = resolve("target", p.target)?;
+    let a = state.resolve("input", p.input).await?;
+    let b = state.resolve("target", p.target).await?;
     let objective = match p.objective.as_str() {
         "" => Embedding::Dct,
         o => Embedding::parse(o).ok_or_else(|| {
@@ -332,7 +443,7 @@ pub async fn lowpass(
     motion: MotionInput,
     cutoff: usize,
 ) -> Result<Motion, ApiError> {
-    let m = resolve("motion", motion)?;
+    let m = state.resolve("motion", motion).await?;
     state
         .heavy("lowpass", move || {
             let m = smpl24_at_60(&m)?;
@@ -356,7 +467,7 @@ pub async fn keyframes(
     state: &AppState,
     p: KeyframesParams,
 ) -> Result<(Motion, KeyframeReport), ApiError> {
-    let m = resolve("motion", p.motion)?;
+    let m = state.resolve("motion", p.motion).await?;
     let select = match p.select.as_str() {
         "" => Select::Dp,
         s => Select::parse(s).ok_or_else(|| {
@@ -403,6 +514,107 @@ pub async fn keyframes(
             Ok(reconstruct(&m, &req)?)
         })
         .await
+}
+
+pub(crate) fn internal(e: impl std::fmt::Display) -> ApiError {
+    ApiError::Internal(e.to_string())
+}
+
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// Store a motion (an upload in any supported format, or an inline motion,
+/// kept as choreo JSON) with `labels` added, and refresh the searcher so
+/// the next query sees it. Idempotent by content hash.
+pub async fn ingest(
+    state: &AppState,
+    input: MotionInput,
+    labels: Labels,
+) -> Result<Stored, ApiError> {
+    let (name, bytes) = match input {
+        MotionInput::Inline(m) => {
+            let stem: String = m
+                .name
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() || c == '_' || c == '-' {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .collect();
+            (
+                format!("{}.json", if stem.is_empty() { "motion" } else { &stem }),
+                write_json(&m),
+            )
+        }
+        MotionInput::File { name, bytes } => {
+            if name.is_empty() {
+                return Err(ApiError::invalid(
+                    "motion.file.name",
+                    "an upload needs its file name (the extension gives the format)",
+                ));
+            }
+            (name, bytes)
+        }
+        MotionInput::Stored(_) => {
+            return Err(ApiError::invalid(
+                "motion",
+                "a stored motion cannot be ingested again",
+            ))
+        }
+    };
+    let opts = IngestOptions {
+        extra_labels: labels,
+        keep_files: true,
+        ..Default::default()
+    };
+    let _permit = state
+        .workers
+        .clone()
+        .try_acquire_owned()
+        .map_err(|_| ApiError::Busy("every worker is busy; retry ingest later".into()))?;
+    let _w = state.writes.lock().await;
+    let stored = ingest_bytes(&state.store, &name, bytes, &opts)
+        .await
+        .map_err(internal)?
+        .map_err(|e| prefix("motion", e.into()))?;
+    state.refresh_searcher().await?;
+    Ok(stored)
+}
+
+/// A stored motion and its row.
+pub async fn get_motion(state: &AppState, id: i64) -> Result<(MotionRow, Motion), ApiError> {
+    load_motion(&state.store, id)
+        .await?
+        .ok_or_else(|| ApiError::NotFound(format!("motion {id}")))
+}
+
+/// A stored motion as BVH text: a BVH source is given back byte for byte,
+/// any other is written (SMPL skeleton, ZXY Euler, centimetres).
+pub async fn export_bvh(state: &AppState, id: i64) -> Result<String, ApiError> {
+    let (row, m) = get_motion(state, id).await?;
+    if row.format == "bvh" {
+        if let Some((_, bytes)) = state.store.motion_file(id).await.map_err(internal)? {
+            return String::from_utf8(bytes).map_err(internal);
+        }
+    }
+    state
+        .heavy("export", move || {
+            Ok(write_bvh(&m, &BvhWriteOptions::default())?)
+        })
+        .await
+}
+
+/// Remove a stored motion and everything derived from it.
+pub async fn delete_motion(state: &AppState, id: i64) -> Result<(), ApiError> {
+    let _w = state.writes.lock().await;
+    if !state.store.delete_motion(id).await.map_err(internal)? {
+        return Err(ApiError::NotFound(format!("motion {id}")));
+    }
+    state.refresh_searcher().await
 }
 
 pub async fn list_motions(state: &AppState) -> Result<Vec<MotionRow>, ApiError> {

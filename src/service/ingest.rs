@@ -24,6 +24,9 @@ pub struct IngestOptions {
     /// Labels added to every motion of this ingest (e.g. `dancer=anna`,
     /// `rehearsal=2026-11-20`); they override labels parsed from names.
     pub extra_labels: Labels,
+    /// Keep the file's bytes in the store (`motion_files`), so the motion
+    /// can be read back without the file (always on for API uploads).
+    pub keep_files: bool,
 }
 
 impl Default for IngestOptions {
@@ -33,6 +36,7 @@ impl Default for IngestOptions {
             stft: StftParams::default(),
             read: ReadOptions::default(),
             extra_labels: Labels::new(),
+            keep_files: false,
         }
     }
 }
@@ -112,6 +116,12 @@ pub fn prepare(
         },
         channels: ch,
         windows,
+        file: opts.keep_files.then(|| {
+            let base = Path::new(file)
+                .file_name()
+                .map_or_else(|| file.to_string(), |n| n.to_string_lossy().into_owned());
+            (base, bytes.to_vec())
+        }),
     })
 }
 
@@ -172,23 +182,101 @@ async fn ingest_one(
         },
         Err(e) => return Ok(Outcome::Failed(format!("{name}: {e}"))),
     };
+    Ok(match ingest_bytes(store, &name, bytes, opts).await? {
+        Ok(Stored::New { windows, .. }) => Outcome::Stored(windows),
+        Ok(Stored::Existing { .. }) => Outcome::Skipped,
+        Err(e) => Outcome::Failed(e.to_string()),
+    })
+}
+
+/// What [`ingest_bytes`] did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(tag = "status", rename_all = "snake_case")]
+pub enum Stored {
+    /// Stored as a new motion with this many windows.
+    New { motion_id: i64, windows: usize },
+    /// The same bytes were already stored (content hash): nothing written.
+    Existing { motion_id: i64 },
+}
+
+/// Store one file's bytes (`name` gives the format and the labels): one
+/// transaction, idempotent by content hash. Does not refit the PCA basis
+/// ([`refresh_pca`]). The outer error is the store's; the inner one says
+/// why the file itself was refused.
+pub async fn ingest_bytes(
+    store: &Store,
+    name: &str,
+    bytes: Vec<u8>,
+    opts: &IngestOptions,
+) -> Result<Result<Stored, MotionError>, StoreError> {
     let hash = content_hash(&bytes);
-    if store.motion_by_hash(&hash).await?.is_some() {
-        return Ok(Outcome::Skipped);
+    if let Some(id) = store.motion_by_hash(&hash).await? {
+        return Ok(Ok(Stored::Existing { motion_id: id }));
     }
     let opts2 = opts.clone();
-    let name2 = name.clone();
+    let name2 = name.to_string();
     let prepared = tokio::task::spawn_blocking(move || prepare(&name2, &bytes, hash, &opts2))
         .await
-        .map_err(|e| MotionError::invalid(&name, "ingest", format!("worker failed: {e}")));
+        .map_err(|e| MotionError::invalid(name, "ingest", format!("worker failed: {e}")));
     match prepared {
         Ok(Ok(m)) => {
-            let n = m.windows.len();
-            store.insert_motion(&m).await?;
-            Ok(Outcome::Stored(n))
+            let windows = m.windows.len();
+            let motion_id = store.insert_motion(&m).await?;
+            Ok(Ok(Stored::New { motion_id, windows }))
         }
-        Ok(Err(e)) | Err(e) => Ok(Outcome::Failed(e.to_string())),
+        Ok(Err(e)) | Err(e) => Ok(Err(e)),
     }
+}
+
+/// A stored motion, read back whole: from the bytes the store kept, else
+/// from its source path (which must still hold the same content).
+pub async fn load_motion(
+    store: &Store,
+    id: i64,
+) -> Result<Option<(crate::store::MotionRow, crate::motion::Motion)>, LoadError> {
+    let Some(row) = store.motion(id).await? else {
+        return Ok(None);
+    };
+    let (name, bytes) = match store.motion_file(id).await? {
+        Some(f) => f,
+        None => {
+            let path = row.source_path.clone();
+            let bytes = tokio::task::spawn_blocking(move || std::fs::read(&path))
+                .await
+                .map_err(|e| LoadError::Gone(format!("{}: {e}", row.source_path)))?
+                .map_err(|e| {
+                    LoadError::Gone(format!(
+                        "motion {id}: the store keeps no copy and {} cannot be read ({e})",
+                        row.source_path
+                    ))
+                })?;
+            if content_hash(&bytes) != row.content_hash {
+                return Err(LoadError::Gone(format!(
+                    "motion {id}: the store keeps no copy and {} has changed since it was ingested",
+                    row.source_path
+                )));
+            }
+            (row.source_path.clone(), bytes)
+        }
+    };
+    let mut m = tokio::task::spawn_blocking(move || {
+        read_bytes(&name, &bytes, &ReadOptions::default()).map(|l| l.motion)
+    })
+    .await
+    .map_err(|e| LoadError::Gone(format!("motion {id}: worker failed: {e}")))??;
+    m.labels = row.labels.clone();
+    Ok(Some((row, m)))
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error(transparent)]
+    Motion(#[from] MotionError),
+    /// The motion's source is no longer readable.
+    #[error("{0}")]
+    Gone(String),
 }
 
 /// Refit the PCA basis on every stored window when the windows changed since

@@ -86,6 +86,15 @@ impl Searcher {
         })
     }
 
+    /// The store generation this searcher reflects.
+    pub fn generation(&self) -> i64 {
+        self.generation
+    }
+
+    pub fn params(&self) -> HnswParams {
+        self.params
+    }
+
     pub fn window_count(&self) -> usize {
         self.windows.len()
     }

@@ -65,6 +65,8 @@ pub struct NewMotion {
     /// `[frames][72]` at 60 fps.
     pub channels: Vec<[f32; CHANNELS]>,
     pub windows: Vec<NewWindow>,
+    /// The source file (name, bytes), kept in the store when given.
+    pub file: Option<(String, Vec<u8>)>,
 }
 
 pub struct NewWindow {
@@ -152,6 +154,29 @@ impl Store {
         }
     }
 
+    /// SQLite's `PRAGMA integrity_check` and `foreign_key_check`: `Ok(())`
+    /// when both find nothing wrong.
+    pub async fn integrity_check(&self) -> Result<()> {
+        let r: String = sqlx::query_scalar("PRAGMA integrity_check")
+            .fetch_one(&self.pool)
+            .await
+            .map_err(|e| self.db(e))?;
+        if r != "ok" {
+            return Err(self.corrupt("integrity_check", r));
+        }
+        let bad = sqlx::query("PRAGMA foreign_key_check")
+            .fetch_all(&self.pool)
+            .await
+            .map_err(|e| self.db(e))?;
+        if !bad.is_empty() {
+            return Err(self.corrupt(
+                "foreign_key_check",
+                format!("{} rows point at nothing", bad.len()),
+            ));
+        }
+        Ok(())
+    }
+
     pub async fn generation(&self) -> Result<i64> {
         let v: String = sqlx::query_scalar("SELECT value FROM meta WHERE key = 'generation'")
             .fetch_one(&self.pool)
@@ -209,6 +234,15 @@ impl Store {
         .execute(&mut *tx)
         .await
         .map_err(|e| self.db(e))?;
+        if let Some((name, bytes)) = &m.file {
+            sqlx::query("INSERT INTO motion_files (motion_id, name, bytes) VALUES (?, ?, ?)")
+                .bind(id)
+                .bind(name)
+                .bind(bytes)
+                .execute(&mut *tx)
+                .await
+                .map_err(|e| self.db(e))?;
+        }
         for w in &m.windows {
             let wid: i64 = sqlx::query_scalar("INSERT INTO windows (motion_id, start_frame, frames) VALUES (?, ?, ?) RETURNING id")
                 .bind(id)
@@ -237,9 +271,12 @@ impl Store {
             .await
             .map_err(|e| self.db(e))?
             .rows_affected();
+        if n == 0 {
+            return Ok(false); // the transaction rolls back on drop
+        }
         bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
         tx.commit().await.map_err(|e| self.db(e))?;
-        Ok(n > 0)
+        Ok(true)
     }
 
     fn row_to_motion(&self, r: &sqlx::sqlite::SqliteRow) -> Result<MotionRow> {
@@ -274,6 +311,22 @@ impl Store {
             .await
             .map_err(|e| self.db(e))?;
         row.map(|r| self.row_to_motion(&r)).transpose()
+    }
+
+    /// The stored source file of a motion (name, bytes), if kept.
+    pub async fn motion_file(&self, id: i64) -> Result<Option<(String, Vec<u8>)>> {
+        let row = sqlx::query("SELECT name, bytes FROM motion_files WHERE motion_id = ?")
+            .bind(id)
+            .fetch_optional(&self.pool)
+            .await
+            .map_err(|e| self.db(e))?;
+        row.map(|r| {
+            Ok((
+                r.try_get("name").map_err(|e| self.db(e))?,
+                r.try_get("bytes").map_err(|e| self.db(e))?,
+            ))
+        })
+        .transpose()
     }
 
     /// Ids of motions carrying every `kind=value` label.

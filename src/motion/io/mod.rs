@@ -6,6 +6,7 @@
 pub mod aist;
 pub mod amass;
 pub mod bvh;
+pub mod json;
 pub mod npy;
 pub mod pickle;
 
@@ -24,6 +25,8 @@ pub enum Format {
     /// AMASS `.npz`.
     Amass,
     Bvh,
+    /// choreo's JSON motion ([`json::MotionJson`]).
+    Json,
 }
 
 impl Format {
@@ -32,6 +35,7 @@ impl Format {
             Format::Aist => "aist",
             Format::Amass => "amass",
             Format::Bvh => "bvh",
+            Format::Json => "json",
         }
     }
 
@@ -47,9 +51,13 @@ impl Format {
         if lower.ends_with(".bvh") {
             return Some(Format::Bvh);
         }
+        if lower.ends_with(".json") {
+            return Some(Format::Json);
+        }
         match bytes {
             [0x80, ..] => Some(Format::Aist),
             [b'P', b'K', ..] => Some(Format::Amass),
+            [b'{', ..] => Some(Format::Json),
             _ if String::from_utf8_lossy(&bytes[..bytes.len().min(64)])
                 .trim_start()
                 .starts_with("HIERARCHY") =>
@@ -78,7 +86,9 @@ pub struct Loaded {
 pub fn read_bytes(file: &str, bytes: &[u8], opts: &ReadOptions) -> Result<Loaded, MotionError> {
     let format = Format::detect(file, bytes).ok_or_else(|| MotionError::Unsupported {
         file: file.to_string(),
-        reason: "not a known motion format (expected .pkl AIST++, .npz AMASS or .bvh)".into(),
+        reason:
+            "not a known motion format (expected .pkl AIST++, .npz AMASS, .bvh or choreo .json)"
+                .into(),
     })?;
     match format {
         Format::Aist => Ok(Loaded {
@@ -88,6 +98,11 @@ pub fn read_bytes(file: &str, bytes: &[u8], opts: &ReadOptions) -> Result<Loaded
         }),
         Format::Amass => Ok(Loaded {
             motion: amass::read_amass_npz(file, bytes)?,
+            format,
+            bvh_layout: None,
+        }),
+        Format::Json => Ok(Loaded {
+            motion: json::read_json(file, bytes)?,
             format,
             bvh_layout: None,
         }),
@@ -126,7 +141,7 @@ pub fn read_path(path: &Path, opts: &ReadOptions) -> Result<Loaded, MotionError>
     read_bytes(&file, &bytes, opts)
 }
 
-/// Write by the extension of `path`: `.bvh` or `.npz`. The file appears
+/// Write by the extension of `path`: `.bvh`, `.npz` or `.json`. The file appears
 /// whole or not at all (written beside, then renamed).
 pub fn write_path(
     m: &Motion,
@@ -139,10 +154,13 @@ pub fn write_path(
         bvh::write_bvh(m, bvh_opts)?.into_bytes()
     } else if lower.ends_with(".npz") {
         amass::write_amass_npz(m)?
+    } else if lower.ends_with(".json") {
+        m.validate()?;
+        json::write_json(m)
     } else {
         return Err(MotionError::Unsupported {
             file,
-            reason: "output format must be .bvh or .npz".into(),
+            reason: "output format must be .bvh, .npz or .json".into(),
         });
     };
     let tmp = path.with_extension("partial");

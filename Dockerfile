@@ -1,0 +1,39 @@
+# choreo: the server image. Build: docker build -t choreo .
+# Run:   docker run -p 8080:8080 -p 50051:50051 -e CHOREO_TOKEN=change-me \
+#          -v choreo-data:/var/lib/choreo choreo
+# The bundled model (models/default) is licensed for non-commercial use
+# (Bandai Namco data); see README "Model licence".
+
+# --- build -----------------------------------------------------------------
+FROM rust:1.95-bookworm AS build
+WORKDIR /src
+# Dependencies first, so source edits do not rebuild them.
+COPY Cargo.toml Cargo.lock build.rs ./
+COPY proto proto
+COPY migrations migrations
+RUN mkdir -p src/bin && echo 'fn main() {}' > src/main.rs && touch src/lib.rs \
+    && echo 'fn main() {}' > src/bin/choreo-train.rs \
+    && cargo build --release --bin choreo || true
+COPY src src
+COPY openapi.json openapi.json
+RUN touch src/main.rs src/lib.rs && cargo build --release --locked --bin choreo \
+    && strip target/release/choreo
+
+# --- run -------------------------------------------------------------------
+FROM debian:bookworm-slim
+RUN apt-get update && apt-get install -y --no-install-recommends ca-certificates \
+    && rm -rf /var/lib/apt/lists/* \
+    && useradd --system --uid 10001 --home-dir /var/lib/choreo --shell /usr/sbin/nologin choreo \
+    && mkdir -p /var/lib/choreo && chown choreo:choreo /var/lib/choreo
+COPY --from=build /src/target/release/choreo /usr/local/bin/choreo
+COPY models/default /opt/choreo/models/default
+USER 10001:10001
+ENV CHOREO_DATA_DIR=/var/lib/choreo \
+    CHOREO_BIND=0.0.0.0 \
+    CHOREO_HTTP_PORT=8080 \
+    CHOREO_GRPC_PORT=50051 \
+    CHOREO_MODEL=/opt/choreo/models/default
+VOLUME /var/lib/choreo
+EXPOSE 8080 50051
+ENTRYPOINT ["/usr/local/bin/choreo"]
+CMD ["serve"]

@@ -1,0 +1,147 @@
+//! choreo's JSON motion: what the REST API sends and receives, and the
+//! file format the store keeps inline motions in. `rotations` is
+//! `[frames][joints][3]` axis-angle (radians) on a named SMPL skeleton,
+//! `translation` `[frames][3]` metres.
+
+use crate::motion::{Labels, Motion, MotionError, Skeleton};
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MotionJson {
+    pub fps: f64,
+    /// `smpl24` (the default) or `smpl13`.
+    #[serde(default)]
+    pub skeleton: String,
+    pub rotations: Vec<Vec<[f64; 3]>>,
+    pub translation: Vec<[f64; 3]>,
+    #[serde(default)]
+    pub labels: Labels,
+    #[serde(default)]
+    pub name: String,
+}
+
+impl MotionJson {
+    pub fn from_motion(m: &Motion) -> MotionJson {
+        let j = m.joints().max(1);
+        MotionJson {
+            fps: m.fps,
+            skeleton: m.skeleton.kind.clone(),
+            rotations: m.rotations.chunks(j).map(|c| c.to_vec()).collect(),
+            translation: m.trans.clone(),
+            labels: m.labels.clone(),
+            name: m.name.clone(),
+        }
+    }
+
+    /// The motion, checked; errors name `file` and the field.
+    pub fn into_motion(self, file: &str) -> Result<Motion, MotionError> {
+        let joints = self.rotations.first().map_or(0, |r| r.len());
+        if let Some(f) = self.rotations.iter().position(|r| r.len() != joints) {
+            return Err(MotionError::invalid(
+                file,
+                "rotations",
+                format!(
+                    "frame {f} has {} joints, frame 0 has {joints}",
+                    self.rotations[f].len()
+                ),
+            ));
+        }
+        let rot: Vec<[f64; 3]> = self.rotations.into_iter().flatten().collect();
+        motion_from_parts(
+            file,
+            &self.name,
+            self.fps,
+            &self.skeleton,
+            rot,
+            self.translation,
+            self.labels,
+        )
+    }
+}
+
+/// A motion from flat arrays (`rotations`: frames × joints × 3,
+/// `translation`: frames × 3) on a named SMPL skeleton.
+pub fn motion_from_parts(
+    file: &str,
+    name: &str,
+    fps: f64,
+    skeleton: &str,
+    rotations: Vec<[f64; 3]>,
+    translation: Vec<[f64; 3]>,
+    labels: Labels,
+) -> Result<Motion, MotionError> {
+    let sk = match skeleton {
+        "smpl24" | "" => Skeleton::smpl24(),
+        "smpl13" => Skeleton::smpl13(),
+        other => {
+            return Err(MotionError::invalid(
+                file,
+                "skeleton",
+                format!("'{other}' is not smpl24 or smpl13 (send other skeletons as a BVH file)"),
+            ))
+        }
+    };
+    let frames = translation.len();
+    if frames == 0 {
+        return Err(MotionError::invalid(file, "translation", "no frames"));
+    }
+    if rotations.len() != frames * sk.len() {
+        return Err(MotionError::invalid(
+            file,
+            "rotations",
+            format!(
+                "{} rotations for {frames} frames × {} joints",
+                rotations.len(),
+                sk.len()
+            ),
+        ));
+    }
+    let name = if name.is_empty() { file } else { name };
+    Motion::new(name, fps, sk, translation, rotations, labels)
+}
+
+/// Parse a JSON motion file.
+pub fn read_json(file: &str, bytes: &[u8]) -> Result<Motion, MotionError> {
+    let j: MotionJson = serde_json::from_slice(bytes)
+        .map_err(|e| MotionError::invalid(file, "json", e.to_string()))?;
+    j.into_motion(file)
+}
+
+/// Write a motion as JSON (exact: serde writes the shortest f64 that reads
+/// back the same).
+pub fn write_json(m: &Motion) -> Vec<u8> {
+    serde_json::to_vec(&MotionJson::from_motion(m)).expect("a motion serialises")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_is_exact() {
+        let m = crate::motion::clip::tests::sine_clip(30, 30.0);
+        let back = read_json("x.json", &write_json(&m)).unwrap();
+        assert_eq!(back.rotations, m.rotations);
+        assert_eq!(back.trans, m.trans);
+        assert_eq!(back.fps, m.fps);
+        assert_eq!(back.skeleton.kind, m.skeleton.kind);
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let e = read_json(
+            "x.json",
+            br#"{"fps":30,"rotations":[[[0,0,0]]],"translation":[]}"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("x.json") && e.contains("translation"), "{e}");
+        let e = read_json(
+            "x.json",
+            br#"{"fps":30,"skeleton":"horse","rotations":[],"translation":[[0,0,0]]}"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("skeleton"), "{e}");
+    }
+}
