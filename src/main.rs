@@ -219,9 +219,13 @@ enum Cmd {
         /// even | onset | percussive | nmfd | dp
         #[arg(long, default_value = "dp")]
         select: String,
-        /// slerp | bezier
+        /// slerp | bezier | learned
         #[arg(long, default_value = "slerp")]
         inbetween: String,
+        /// The learned in-betweener (a folder written by `choreo-train
+        /// inbetween`), for `--inbetween learned`.
+        #[arg(long, env = "CHOREO_INBETWEENER", default_value = "models/inbetween")]
+        inbetweener: PathBuf,
         #[arg(long)]
         out: Option<PathBuf>,
         #[arg(long)]
@@ -683,9 +687,20 @@ fn run(cli: Cli) -> Result<()> {
             count,
             select,
             inbetween,
+            inbetweener,
             out,
             json,
-        } => keyframes_cmd(motion, bpm, music, count, select, inbetween, out, json),
+        } => keyframes_cmd(
+            motion,
+            bpm,
+            music,
+            count,
+            select,
+            inbetween,
+            &inbetweener,
+            out,
+            json,
+        ),
         Cmd::Eval {
             cmd:
                 EvalCmd::Interpolate {
@@ -1361,17 +1376,24 @@ fn keyframes_cmd(
     count: usize,
     select: String,
     inbetween: String,
+    inbetweener: &std::path::Path,
     out: Option<PathBuf>,
     json: bool,
 ) -> Result<()> {
-    use choreo::service::keyframes::{reconstruct, Inbetween, KeyframeRequest, Music, Select};
+    use choreo::service::keyframes::{
+        reconstruct, Inbetween, KeyframeRequest, LearnedModel, Music, Select,
+    };
     let select = Select::parse(&select).with_context(|| {
         format!("--select: '{select}' is not even, onset, percussive, nmfd or dp")
     })?;
     let inbetween = match inbetween.as_str() {
         "slerp" => Inbetween::Slerp,
         "bezier" => Inbetween::Bezier,
-        other => bail!("--inbetween: '{other}' is not slerp or bezier"),
+        "learned" => Inbetween::Learned(LearnedModel(std::sync::Arc::new(
+            choreo::lm::inbetween::Inbetweener::load(inbetweener)
+                .with_context(|| format!("--inbetweener {}", inbetweener.display()))?,
+        ))),
+        other => bail!("--inbetween: '{other}' is not slerp, bezier or learned"),
     };
     let music = match (music, bpm) {
         (Some(p), _) => {

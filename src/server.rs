@@ -41,6 +41,10 @@ pub struct ServeConfig {
     /// classify answer 503; a broken model stops start-up.
     #[arg(long, env = "CHOREO_MODEL", default_value = "models/default")]
     pub model: PathBuf,
+    /// The learned in-betweener for `keyframes` with `inbetween: learned`
+    /// (a folder written by `choreo-train inbetween`); missing = 503.
+    #[arg(long, env = "CHOREO_INBETWEENER", default_value = "models/inbetween")]
+    pub inbetweener: PathBuf,
     /// Bearer token that writes (ingest, delete) must present; without one
     /// writes are refused (403 / PERMISSION_DENIED).
     #[arg(long, env = "CHOREO_TOKEN", hide_env_values = true)]
@@ -121,13 +125,21 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     if cfg.token.as_deref().is_none_or(str::is_empty) {
         eprintln!("no --token (CHOREO_TOKEN): ingest and delete are switched off");
     }
-    let state = Arc::new(AppState::new(
-        store,
-        searcher,
-        cfg.workers,
-        model,
-        cfg.token.clone(),
-    ));
+    let inbetweener = if cfg.inbetweener.exists() {
+        Some(Arc::new(
+            crate::lm::inbetween::Inbetweener::load(&cfg.inbetweener)
+                .with_context(|| format!("--inbetweener {}", cfg.inbetweener.display()))?,
+        ))
+    } else {
+        eprintln!(
+            "no in-betweener at {}: keyframes with inbetween=learned will answer 503",
+            cfg.inbetweener.display()
+        );
+        None
+    };
+    let mut state = AppState::new(store, searcher, cfg.workers, model, cfg.token.clone());
+    state.inbetweener = inbetweener;
+    let state = Arc::new(state);
     let max = cfg.max_body_mb.max(1) << 20;
     let http_l = tokio::net::TcpListener::bind((cfg.bind.as_str(), cfg.http_port))
         .await

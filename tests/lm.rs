@@ -320,3 +320,130 @@ fn corrupt_checkpoint_and_empty_corpus_are_clear_errors() {
         .to_string();
     assert!(e.contains("empty corpus"), "{e}");
 }
+
+/// The learned in-betweener: the export in tract matches candle, a rebuild
+/// keeps the keyframes and gives finite poses, training lowers the loss
+/// on a clip SLERP cannot rebuild, and a broken export is a clear error.
+#[test]
+fn inbetweener_export_parity_rebuild_and_bad_manifests() {
+    use choreo::lm::inbetween::{InbetweenConfig, Inbetweener};
+    use choreo::train::inbetween as ib;
+    use rand::SeedableRng;
+    let cfg = InbetweenConfig {
+        window: 16,
+        d_model: 16,
+        n_layers: 2,
+        n_heads: 2,
+        d_ff: 32,
+        ln_eps: 1e-5,
+        condition: Some(("genre".into(), vec!["gBR".into(), "gJS".into()])),
+    };
+    let dev = Device::Cpu;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+    let net = ib::InbetweenNet::new(cfg.clone(), &dev).unwrap();
+    // Training on a sine clip with keyframes 12 frames apart: SLERP cuts
+    // the arcs, the model must learn them back.
+    let clip = ib::Clip {
+        corpus: "synthetic".into(),
+        name: "sine".into(),
+        labels: sine_motion(120, 0.3).labels.clone(),
+        motion: sine_motion(120, 0.3),
+    };
+    let clips = vec![clip];
+    let fixed: Vec<ib::Example> = (0..8)
+        .map(|_| ib::example(&cfg, &clips[0], 12, &mut rng).unwrap())
+        .collect();
+    let before = ib::loss(&net, &fixed, &dev)
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
+    let settings = ib::Settings {
+        steps: 150,
+        batch: 8,
+        lr: 3e-3,
+        warmup: 5,
+        weight_decay: 0.0,
+        spacing: (12, 12),
+        seed: 0,
+        max_seconds: None,
+    };
+    ib::train(&net, &clips, &settings, &mut rng, &dev, &mut |_, _, _| {}).unwrap();
+    let after = ib::loss(&net, &fixed, &dev)
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
+    assert!(after < 0.5 * before, "loss {before} → {after}");
+
+    let dir = tempfile::tempdir().unwrap();
+    ib::export(
+        &net,
+        DataInfo::default(),
+        Default::default(),
+        serde_json::json!({}),
+        dir.path(),
+    )
+    .unwrap();
+    let model = Inbetweener::load(dir.path()).unwrap();
+    let d = ib::parity(&net, &model, &mut rng).unwrap();
+    assert!(d < 1e-4, "tract vs candle {d}");
+    ib::jitter(&net, &mut rng).unwrap();
+    let dir2 = tempfile::tempdir().unwrap();
+    ib::export(
+        &net,
+        DataInfo::default(),
+        Default::default(),
+        serde_json::json!({}),
+        dir2.path(),
+    )
+    .unwrap();
+    let jittered = Inbetweener::load(dir2.path()).unwrap();
+    let d = ib::parity(&net, &jittered, &mut rng).unwrap();
+    assert!(d < 1e-4, "tract vs candle after jitter {d}");
+
+    // Rebuild: keyframes untouched, every pose finite, and closer to the
+    // clip than SLERP on the clip it learned.
+    let m = sine_motion(100, 0.3);
+    let keys = vec![0, 12, 24, 36, 48, 60, 72, 84, 99];
+    let r = model.rebuild(&m, &keys).unwrap();
+    assert_eq!(r.frames(), 100);
+    for &k in &keys {
+        assert_eq!(r.frame_rotations(k), m.frame_rotations(k), "keyframe {k}");
+    }
+    assert!(r.rotations.iter().flatten().all(|v| v.is_finite()));
+    let s = choreo::keyframes::inbetween::slerp(&m, &keys).unwrap();
+    let p = m.positions();
+    let (e_s, e_l) = (
+        choreo::keyframes::metrics::mse(&p, &s.positions()),
+        choreo::keyframes::metrics::mse(&p, &r.positions()),
+    );
+    assert!(e_l < e_s, "learned {e_l} vs slerp {e_s}");
+
+    // A wrong hash, a language model's manifest, a bad window.
+    let mpath = dir.path().join("manifest.json");
+    let text = std::fs::read_to_string(&mpath).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    v["onnx_sha256"] = "00".into();
+    std::fs::write(&mpath, v.to_string()).unwrap();
+    let e = Inbetweener::load(dir.path()).unwrap_err().to_string();
+    assert!(
+        e.contains("manifest.json") && e.contains("onnx_sha256"),
+        "{e}"
+    );
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    v["kind"] = "motion-lm".into();
+    std::fs::write(&mpath, v.to_string()).unwrap();
+    let e = Inbetweener::load(dir.path()).unwrap_err().to_string();
+    assert!(e.contains("kind"), "{e}");
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    v["config"]["window"] = 7.into();
+    std::fs::write(&mpath, v.to_string()).unwrap();
+    let e = Inbetweener::load(dir.path()).unwrap_err().to_string();
+    assert!(e.contains("config.window"), "{e}");
+    // A 13-joint clip is refused with the reason.
+    let small = m.to_smpl13().unwrap();
+    let e = jittered
+        .rebuild(&small, &[0, 50, 99])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("SMPL-24"), "{e}");
+}

@@ -95,6 +95,7 @@ fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
         ingest,
         model: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/default"),
         token: Some(TOKEN.into()),
+        inbetweener: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/inbetween"),
     }
 }
 
@@ -198,6 +199,47 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
     assert_eq!(k.keyframes, rest_keys);
     eprintln!("gRPC keyframes ok");
     assert!((k.mse - rest["mse"].as_f64().unwrap()).abs() < 1e-12);
+
+    // The learned in-betweener (the bundled one): the same rebuild over
+    // both transports, keyframes kept, and (on this AIST++ clip, 8 even
+    // keyframes) no worse than SLERP.
+    let learned = |inbetween: &str| {
+        json!({"motion": {"file": {"name": "a.pkl", "content_base64": base64::engine::general_purpose::STANDARD.encode(&bytes)}},
+               "count": 40, "select": "even", "inbetween": inbetween})
+    };
+    let (lb, sb) = (learned("learned"), learned("slerp"));
+    let (ls, lr, ss, sr) = tokio::task::spawn_blocking(move || {
+        let (a, b) = http(h, "POST", "/v1/keyframes", Some(&lb));
+        let (c, d) = http(h, "POST", "/v1/keyframes", Some(&sb));
+        (a, b, c, d)
+    })
+    .await
+    .unwrap();
+    assert_eq!((ls, ss), (200, 200), "{lr} {sr}");
+    assert_eq!(lr["inbetween"], "learned");
+    assert_eq!(lr["keyframes"], sr["keyframes"]);
+    let (lm, sm) = (lr["mse"].as_f64().unwrap(), sr["mse"].as_f64().unwrap());
+    eprintln!("keyframes 40 even: slerp {sm:.6} m², learned {lm:.6} m²");
+    assert!(
+        lm.is_finite() && lm <= sm * 1.05,
+        "learned {lm} vs slerp {sm}"
+    );
+    let gk = client
+        .keyframes(pb::KeyframesRequest {
+            motion: Some(source("a.pkl", bytes.clone())),
+            count: 40,
+            select: "even".into(),
+            inbetween: "learned".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!((gk.mse - lm).abs() < 1e-12);
+    assert_eq!(
+        gk.output.unwrap().rotations.len(),
+        lr["output"]["rotations"].as_array().unwrap().len() * 72
+    );
 
     // Errors name the field, with the right code on each transport.
     let bad = json!({"motion": {"motion": {"fps": 60, "skeleton": "smpl24", "rotations": [[[0.0, 0.0, 0.0]]], "translation": [[0, 0, 0]]}}, "k": 3});
@@ -536,6 +578,7 @@ async fn without_a_model_generate_is_unavailable() {
     let dir = tempfile::tempdir().unwrap();
     let mut cfg = config(dir.path(), vec![]);
     cfg.model = dir.path().join("no-model-here");
+    cfg.inbetweener = dir.path().join("no-inbetweener-here");
     let running = start(&cfg).await.unwrap();
     let h = running.http;
     let (status, err) =
@@ -544,6 +587,31 @@ async fn without_a_model_generate_is_unavailable() {
             .unwrap();
     assert_eq!(status, 503, "{err}");
     assert_eq!(err["error"]["code"], "unavailable");
+    let clip = choreo::api::http::MotionJson::from_motion(
+        &choreo::motion::Motion::new(
+            "still",
+            60.0,
+            choreo::motion::Skeleton::smpl24(),
+            vec![[0.0, 0.9, 0.0]; 120],
+            vec![[0.0; 3]; 120 * 24],
+            Default::default(),
+        )
+        .unwrap(),
+    );
+    let body =
+        json!({"motion": {"motion": clip}, "count": 4, "select": "even", "inbetween": "learned"});
+    let (status, err) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/keyframes", Some(&body)))
+            .await
+            .unwrap();
+    assert_eq!(status, 503, "{err}");
+    assert!(
+        err["error"]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("inbetweener"),
+        "{err}"
+    );
     running.shutdown().await.unwrap();
 }
 
@@ -737,7 +805,8 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
 
     // Query by stored id: the motion finds itself first, over both
     // transports alike.
-    let q = json!({"motion": {"id": pkl_id}, "start_s": 2.0, "k": 3});
+    // 2.1333 s = frame 128 at 60 fps: a stored window starts there.
+    let q = json!({"motion": {"id": pkl_id}, "start_s": 128.0 / 60.0, "k": 3});
     let (qs, qr) = tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&q)))
         .await
         .unwrap();
@@ -750,7 +819,7 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
             motion: Some(pb::MotionSource {
                 source: Some(pb::motion_source::Source::Id(pkl_id)),
             }),
-            start_s: 2.0,
+            start_s: 128.0 / 60.0,
             k: 3,
             ..Default::default()
         })

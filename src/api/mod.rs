@@ -21,7 +21,7 @@ pub use crate::service::ingest::Stored;
 use crate::service::ingest::{ingest_bytes, load_motion, IngestOptions, LoadError};
 use crate::service::interpolate::{interpolate_motions, with_channels, InterpolateReport};
 use crate::service::keyframes::{
-    reconstruct, Inbetween, KeyframeReport, KeyframeRequest, Music, Select,
+    reconstruct, Inbetween, KeyframeReport, KeyframeRequest, LearnedModel, Music, Select,
 };
 use crate::service::query::{QueryError, QueryHit, QueryRequest, Searcher};
 use crate::store::{MotionRow, Store};
@@ -235,6 +235,8 @@ pub struct AppState {
     pub workers: Arc<Semaphore>,
     /// The motion language model, when one is installed.
     pub model: Option<Arc<crate::lm::LmSession>>,
+    /// The learned in-betweener, when one is installed.
+    pub inbetweener: Option<Arc<crate::lm::inbetween::Inbetweener>>,
     /// Request counts and latencies for `/metrics`.
     pub metrics: Arc<metrics::Metrics>,
 }
@@ -254,6 +256,7 @@ impl AppState {
             token: token.filter(|t| !t.is_empty()),
             workers: Arc::new(Semaphore::new(workers.max(1))),
             model,
+            inbetweener: None,
             metrics: Default::default(),
         }
     }
@@ -480,10 +483,17 @@ pub async fn keyframes(
     let inbetween = match p.inbetween.as_str() {
         "" | "slerp" => Inbetween::Slerp,
         "bezier" => Inbetween::Bezier,
+        "learned" => Inbetween::Learned(LearnedModel(state.inbetweener.clone().ok_or_else(
+            || {
+                ApiError::Unavailable(
+                    "no learned in-betweener is installed (set --inbetweener)".into(),
+                )
+            },
+        )?)),
         o => {
             return Err(ApiError::invalid(
                 "inbetween",
-                format!("'{o}' is not slerp or bezier"),
+                format!("'{o}' is not slerp, bezier or learned"),
             ))
         }
     };

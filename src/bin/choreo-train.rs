@@ -169,6 +169,48 @@ enum Cmd {
         #[command(flatten)]
         data: DataArgs,
     },
+    /// Train the learned in-betweener (thesis 001 §3.5.3: *Motion*, or
+    /// *Genre* with --condition genre), export it to OUT, and compare it
+    /// with SLERP and Bézier on the held-out clips.
+    Inbetween(Box<InbetweenArgs>),
+}
+
+#[derive(Args, Clone)]
+struct InbetweenArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// Output folder: model.onnx, manifest.json, eval.json.
+    #[arg(long)]
+    out: PathBuf,
+    /// Frames per window (60 fps; even).
+    #[arg(long, default_value_t = 64)]
+    window: usize,
+    #[arg(long, default_value_t = 64)]
+    d_model: usize,
+    #[arg(long, default_value_t = 2)]
+    layers: usize,
+    #[arg(long, default_value_t = 4)]
+    heads: usize,
+    /// Condition on this label kind's values (one-hot), e.g. genre.
+    #[arg(long)]
+    condition: Option<String>,
+    #[arg(long, default_value_t = 1500)]
+    steps: usize,
+    #[arg(long, default_value_t = 16)]
+    batch: usize,
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// Smallest and largest keyframe spacing drawn in training (frames).
+    #[arg(long, default_values_t = vec![6, 40], num_args = 2)]
+    spacing: Vec<usize>,
+    /// Held-out spacings evaluated (frames at 60 fps).
+    #[arg(long, default_values_t = vec![10, 20, 30], value_delimiter = ',')]
+    eval_spacing: Vec<usize>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Stop after this many seconds (0 = run all steps).
+    #[arg(long, default_value_t = 0.0)]
+    max_seconds: f64,
 }
 
 fn main() {
@@ -201,6 +243,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::EvalClassify { checkpoint, data } => eval_classify(&checkpoint, &data),
+        Cmd::Inbetween(a) => inbetween(*a),
         Cmd::BenchForward {
             checkpoint,
             repeats,
@@ -824,5 +867,125 @@ fn eval_classify(ckpt: &Path, a: &DataArgs) -> Result<()> {
         "windows",
         ns.iter().map(|x| format!("{x:>10}")).collect::<String>()
     );
+    Ok(())
+}
+
+fn inbetween(a: InbetweenArgs) -> Result<()> {
+    use choreo::lm::inbetween::{InbetweenConfig, Inbetweener};
+    use choreo::train::inbetween as ib;
+    use rand::SeedableRng;
+    let cfg = InbetweenConfig {
+        window: a.window,
+        d_model: a.d_model,
+        n_layers: a.layers,
+        n_heads: a.heads,
+        d_ff: 4 * a.d_model,
+        ln_eps: 1e-5,
+        condition: None,
+    };
+    let dirs = choreo::train::data::corpus_dirs(&a.data.data, &a.data.corpora)?;
+    let (motions, info) = choreo::train::data::read_motions(&dirs)?;
+    let condition = match &a.condition {
+        None => None,
+        Some(kind) => {
+            let values: std::collections::BTreeSet<String> = motions
+                .iter()
+                .filter_map(|(_, m)| m.labels.get(kind).cloned())
+                .collect();
+            if values.is_empty() {
+                anyhow::bail!("--condition {kind}: no motion carries that label");
+            }
+            Some((kind.clone(), values.into_iter().collect::<Vec<_>>()))
+        }
+    };
+    let cfg = InbetweenConfig { condition, ..cfg };
+    cfg.validate("--window/--d-model/--heads")?;
+    let (train, val) = ib::prepare(motions, a.data.val_fraction, cfg.window + 1)?;
+    eprintln!(
+        "{} training clips, {} held out ({} corpora)",
+        train.len(),
+        val.len(),
+        info.corpora.len()
+    );
+    let dev = choreo::train::device();
+    let net = ib::InbetweenNet::new(cfg.clone(), &dev)?;
+    eprintln!("{} parameters", net.n_params());
+    let settings = ib::Settings {
+        steps: a.steps,
+        batch: a.batch,
+        lr: a.lr,
+        warmup: (a.steps / 20).max(1),
+        weight_decay: 0.01,
+        spacing: (a.spacing[0].max(2), a.spacing[1].max(a.spacing[0].max(2))),
+        seed: a.seed,
+        max_seconds: (a.max_seconds > 0.0).then_some(a.max_seconds),
+    };
+    let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed);
+    let t0 = std::time::Instant::now();
+    let mut curve = Vec::new();
+    let mut ema = f64::NAN;
+    let steps = ib::train(
+        &net,
+        &train,
+        &settings,
+        &mut rng,
+        &dev,
+        &mut |step, loss, lr| {
+            ema = if ema.is_nan() {
+                loss
+            } else {
+                0.95 * ema + 0.05 * loss
+            };
+            curve.push((step, loss));
+            if step % 50 == 0 || step + 1 == settings.steps {
+                eprintln!(
+                    "step {step:>5}  loss {loss:.5}  (ema {ema:.5})  lr {lr:.2e}  {:.0} s",
+                    t0.elapsed().as_secs_f64()
+                );
+            }
+        },
+    )?;
+    let secs = t0.elapsed().as_secs_f64();
+    // Export, load back in tract, check parity, evaluate the export.
+    let training = serde_json::json!({"settings": settings, "steps_done": steps, "seconds": secs,
+        "train_clips": train.len(), "val_clips": val.len(),
+        "final_loss_ema": ema});
+    ib::export(
+        &net,
+        info.clone(),
+        Default::default(),
+        training.clone(),
+        &a.out,
+    )?;
+    let model = Inbetweener::load(&a.out)?;
+    let parity = ib::parity(&net, &model, &mut rng)?;
+    let rows = ib::evaluate(&model, &train, &val, &a.eval_spacing)?;
+    let mut metrics = std::collections::BTreeMap::new();
+    metrics.insert("parity_max_abs".to_string(), parity);
+    for r in &rows {
+        metrics.insert(format!("val_slerp_cm2_s{}", r.spacing), r.slerp_cm2);
+        metrics.insert(
+            format!("val_bezier_avg_cm2_s{}", r.spacing),
+            r.bezier_avg_cm2,
+        );
+        metrics.insert(format!("val_learned_cm2_s{}", r.spacing), r.learned_cm2);
+    }
+    ib::export(&net, info, metrics, training, &a.out)?;
+    let report = serde_json::json!({"parity_max_abs": parity, "steps": steps, "seconds": secs,
+        "val_clips": val.iter().map(|c| format!("{}/{}", c.corpus, c.name)).collect::<Vec<_>>(),
+        "rows": rows});
+    std::fs::write(
+        a.out.join("eval.json"),
+        serde_json::to_string_pretty(&report)? + "\n",
+    )?;
+    println!("trained {steps} steps in {secs:.0} s; tract vs candle max |Δ| {parity:.2e}");
+    println!("held-out MSE on FK positions, cm² (mean over clips):");
+    println!("spacing  clips    slerp  bezier-avg  learned  (bezier fitted to the clip)");
+    for r in &rows {
+        println!(
+            "{:>7}  {:>5}  {:>7.3}  {:>10.3}  {:>7.3}  ({:.3})",
+            r.spacing, r.clips, r.slerp_cm2, r.bezier_avg_cm2, r.learned_cm2, r.bezier_fit_cm2
+        );
+    }
     Ok(())
 }

@@ -54,23 +54,59 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
+/// Reads `dir/manifest.json` (or the file itself when `path` is one):
+/// the file, its display name and the parsed manifest.
+pub fn read_manifest<T: serde::de::DeserializeOwned>(
+    path: &Path,
+) -> Result<(PathBuf, String, T), LmError> {
+    let file = if path.is_dir() {
+        path.join(MANIFEST_FILE)
+    } else {
+        path.to_path_buf()
+    };
+    let name = file.display().to_string();
+    let text = std::fs::read_to_string(&file).map_err(|e| LmError::Io {
+        file: name.clone(),
+        reason: e.to_string(),
+    })?;
+    let m =
+        serde_json::from_str(&text).map_err(|e| LmError::invalid(&name, "json", e.to_string()))?;
+    Ok((file, name, m))
+}
+
+/// The ONNX file a manifest names (relative to it), checked against the
+/// manifest's SHA-256.
+pub fn read_onnx_checked(
+    manifest_file: &Path,
+    name: &str,
+    onnx: &str,
+    sha256: &str,
+) -> Result<(PathBuf, Vec<u8>), LmError> {
+    let onnx_path = manifest_file.parent().unwrap_or(Path::new(".")).join(onnx);
+    let bytes = std::fs::read(&onnx_path).map_err(|e| LmError::Io {
+        file: onnx_path.display().to_string(),
+        reason: e.to_string(),
+    })?;
+    let got = sha256_hex(&bytes);
+    if got != sha256 {
+        return Err(LmError::invalid(
+            name,
+            "onnx_sha256",
+            format!(
+                "{sha256} does not match {} (sha256 {got}): the manifest belongs to another export",
+                onnx_path.display()
+            ),
+        ));
+    }
+    Ok((onnx_path, bytes))
+}
+
 impl Manifest {
     /// Reads `dir/manifest.json` (or the file itself when `path` is one) and
     /// checks it against its ONNX file. Returns the manifest and the ONNX
     /// bytes.
     pub fn load(path: &Path) -> Result<(Manifest, PathBuf, Vec<u8>), LmError> {
-        let file = if path.is_dir() {
-            path.join(MANIFEST_FILE)
-        } else {
-            path.to_path_buf()
-        };
-        let name = file.display().to_string();
-        let text = std::fs::read_to_string(&file).map_err(|e| LmError::Io {
-            file: name.clone(),
-            reason: e.to_string(),
-        })?;
-        let m: Manifest = serde_json::from_str(&text)
-            .map_err(|e| LmError::invalid(&name, "json", e.to_string()))?;
+        let (file, name, m): (PathBuf, String, Manifest) = read_manifest(path)?;
         if m.format != MANIFEST_FORMAT {
             return Err(LmError::invalid(
                 &name,
@@ -93,23 +129,7 @@ impl Manifest {
                 ),
             ));
         }
-        let onnx_path = file.parent().unwrap_or(Path::new(".")).join(&m.onnx);
-        let bytes = std::fs::read(&onnx_path).map_err(|e| LmError::Io {
-            file: onnx_path.display().to_string(),
-            reason: e.to_string(),
-        })?;
-        let got = sha256_hex(&bytes);
-        if got != m.onnx_sha256 {
-            return Err(LmError::invalid(
-                &name,
-                "onnx_sha256",
-                format!(
-                    "{} does not match {} (sha256 {got}): the manifest belongs to another export",
-                    m.onnx_sha256,
-                    onnx_path.display()
-                ),
-            ));
-        }
+        let (onnx_path, bytes) = read_onnx_checked(&file, &name, &m.onnx, &m.onnx_sha256)?;
         Ok((m, onnx_path, bytes))
     }
 

@@ -18,6 +18,7 @@
 //! only place that says so; the trainer and the server both call them.
 
 pub mod generate;
+pub mod inbetween;
 pub mod manifest;
 pub mod runtime;
 

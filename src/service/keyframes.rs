@@ -53,6 +53,18 @@ pub enum Inbetween {
     Bezier,
     /// Bézier with control points averaged over training data.
     BezierAverage(#[serde(skip)] BezierOffsets),
+    /// SLERP plus the residual of a trained model (thesis 001 §3.5.3).
+    Learned(#[serde(skip)] LearnedModel),
+}
+
+/// A loaded in-betweener (equal when it is the same one).
+#[derive(Clone, Debug)]
+pub struct LearnedModel(pub std::sync::Arc<crate::lm::inbetween::Inbetweener>);
+
+impl PartialEq for LearnedModel {
+    fn eq(&self, other: &Self) -> bool {
+        std::sync::Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 impl Inbetween {
@@ -61,6 +73,7 @@ impl Inbetween {
             Inbetween::Slerp => "slerp",
             Inbetween::Bezier => "bezier",
             Inbetween::BezierAverage(_) => "bezier-avg",
+            Inbetween::Learned(_) => "learned",
         }
     }
 }
@@ -201,6 +214,7 @@ pub fn rebuild(m: &Motion, keys: &[usize], how: &Inbetween) -> Result<Motion, Mo
         Inbetween::Slerp => inbetween::slerp(m, keys),
         Inbetween::Bezier => inbetween::bezier(m, keys),
         Inbetween::BezierAverage(off) => off.apply(m, keys),
+        Inbetween::Learned(model) => model.0.rebuild(m, keys),
     }
 }
 

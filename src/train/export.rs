@@ -11,22 +11,24 @@ use crate::tokenize::vocab::Vocabulary;
 use prost::Message;
 use std::collections::BTreeMap;
 use std::path::Path;
+pub(crate) use tract_onnx::pb::tensor_proto::DataType;
 use tract_onnx::pb::{
-    attribute_proto::AttributeType, tensor_proto::DataType, tensor_shape_proto::dimension,
-    tensor_shape_proto::Dimension, type_proto, AttributeProto, GraphProto, ModelProto, NodeProto,
-    OperatorSetIdProto, TensorProto, TensorShapeProto, TypeProto, ValueInfoProto,
+    attribute_proto::AttributeType, tensor_shape_proto::dimension, tensor_shape_proto::Dimension,
+    type_proto, AttributeProto, GraphProto, ModelProto, NodeProto, OperatorSetIdProto, TensorProto,
+    TensorShapeProto, TypeProto, ValueInfoProto,
 };
 
 pub const ONNX_FILE: &str = "model.onnx";
 
+/// Collects nodes and initialisers of one graph.
 #[derive(Default)]
-struct Builder {
-    nodes: Vec<NodeProto>,
-    inits: Vec<TensorProto>,
+pub(crate) struct Builder {
+    pub(crate) nodes: Vec<NodeProto>,
+    pub(crate) inits: Vec<TensorProto>,
     count: usize,
 }
 
-fn attr_i(name: &str, i: i64) -> AttributeProto {
+pub(crate) fn attr_i(name: &str, i: i64) -> AttributeProto {
     AttributeProto {
         name: name.into(),
         r#type: AttributeType::Int as i32,
@@ -34,7 +36,7 @@ fn attr_i(name: &str, i: i64) -> AttributeProto {
         ..Default::default()
     }
 }
-fn attr_f(name: &str, f: f32) -> AttributeProto {
+pub(crate) fn attr_f(name: &str, f: f32) -> AttributeProto {
     AttributeProto {
         name: name.into(),
         r#type: AttributeType::Float as i32,
@@ -42,7 +44,7 @@ fn attr_f(name: &str, f: f32) -> AttributeProto {
         ..Default::default()
     }
 }
-fn attr_ints(name: &str, ints: &[i64]) -> AttributeProto {
+pub(crate) fn attr_ints(name: &str, ints: &[i64]) -> AttributeProto {
     AttributeProto {
         name: name.into(),
         r#type: AttributeType::Ints as i32,
@@ -78,7 +80,7 @@ pub fn value_info(name: &str, elem: DataType, dims: &[&str]) -> ValueInfoProto {
 
 impl Builder {
     /// Adds a node; returns its output's name (`out` or a fresh one).
-    fn op(
+    pub(crate) fn op(
         &mut self,
         op: &str,
         inputs: &[&str],
@@ -99,7 +101,7 @@ impl Builder {
         });
         o
     }
-    fn f32(&mut self, name: &str, dims: &[usize], data: Vec<f32>) -> String {
+    pub(crate) fn f32(&mut self, name: &str, dims: &[usize], data: Vec<f32>) -> String {
         self.inits.push(TensorProto {
             dims: dims.iter().map(|&d| d as i64).collect(),
             data_type: DataType::Float as i32,
@@ -109,7 +111,7 @@ impl Builder {
         });
         name.into()
     }
-    fn i64(&mut self, name: &str, data: &[i64]) -> String {
+    pub(crate) fn i64(&mut self, name: &str, data: &[i64]) -> String {
         self.inits.push(TensorProto {
             dims: vec![data.len() as i64],
             data_type: DataType::Int64 as i32,
@@ -119,36 +121,161 @@ impl Builder {
         });
         name.into()
     }
-    fn scalar(&mut self, name: &str, v: f32) -> String {
+    pub(crate) fn scalar(&mut self, name: &str, v: f32) -> String {
         self.f32(name, &[], vec![v])
     }
-}
 
-fn weights(model: &Gpt) -> anyhow::Result<BTreeMap<String, (Vec<usize>, Vec<f32>)>> {
-    let mut out = BTreeMap::new();
-    for (k, t) in model.tensors() {
-        let dims = t.dims().to_vec();
-        let data = t.flatten_all()?.to_vec1::<f32>()?;
-        out.insert(k, (dims, data));
+    /// Every named tensor as an initialiser.
+    pub(crate) fn weights(
+        &mut self,
+        t: BTreeMap<String, candle_core::Tensor>,
+    ) -> anyhow::Result<()> {
+        for (name, t) in t {
+            let dims = t.dims().to_vec();
+            let data = t.flatten_all()?.to_vec1::<f32>()?;
+            self.f32(&name, &dims, data);
+        }
+        Ok(())
     }
-    Ok(out)
+
+    /// `LayerNormalization` with `pre.w`, `pre.b`.
+    pub(crate) fn ln(&mut self, x: &str, pre: &str, eps: f32) -> String {
+        self.op(
+            "LayerNormalization",
+            &[x, &format!("{pre}.w"), &format!("{pre}.b")],
+            vec![attr_i("axis", -1), attr_f("epsilon", eps)],
+            None,
+        )
+    }
+
+    /// `x · pre.w + pre.b`.
+    pub(crate) fn lin(&mut self, x: &str, pre: &str) -> String {
+        let m = self.op("MatMul", &[x, &format!("{pre}.w")], vec![], None);
+        self.op("Add", &[&m, &format!("{pre}.b")], vec![], None)
+    }
+
+    /// GELU, erf form: 0.5 · x · (1 + erf(x / √2)).
+    pub(crate) fn gelu(&mut self, x: &str) -> String {
+        let half = self.const_scalar("half", 0.5);
+        let one = self.const_scalar("one", 1.0);
+        let inv_sqrt2 = self.const_scalar("inv_sqrt2", std::f32::consts::FRAC_1_SQRT_2);
+        let e = self.op("Mul", &[x, &inv_sqrt2], vec![], None);
+        let e = self.op("Erf", &[&e], vec![], None);
+        let e = self.op("Add", &[&e, &one], vec![], None);
+        let hf = self.op("Mul", &[x, &half], vec![], None);
+        self.op("Mul", &[&hf, &e], vec![], None)
+    }
+
+    /// A scalar initialiser, added once per name.
+    fn const_scalar(&mut self, name: &str, v: f32) -> String {
+        if !self.inits.iter().any(|t| t.name == name) {
+            self.scalar(name, v);
+        }
+        name.into()
+    }
+
+    /// `[B, T, d]` → `[B, H, T, dh]`.
+    pub(crate) fn heads(&mut self, y: &str, h: i64, dh: i64) -> String {
+        let shape = self.const_i64("shape_heads", &[0, 0, h, dh]);
+        let y = self.op("Reshape", &[y, &shape], vec![], None);
+        self.op(
+            "Transpose",
+            &[&y],
+            vec![attr_ints("perm", &[0, 2, 1, 3])],
+            None,
+        )
+    }
+
+    fn const_i64(&mut self, name: &str, data: &[i64]) -> String {
+        if !self.inits.iter().any(|t| t.name == name) {
+            self.i64(name, data);
+        }
+        name.into()
+    }
+
+    /// Multi-head attention of `q` over `k`, `v` (all `[B, H, ·, dh]`),
+    /// plus an additive bias; back to `[B, T, d]`.
+    pub(crate) fn attend(
+        &mut self,
+        q: &str,
+        k: &str,
+        v: &str,
+        bias: Option<&str>,
+        d: i64,
+        dh: i64,
+    ) -> String {
+        let scale = self.const_scalar("attn_scale", 1.0 / (dh as f32).sqrt());
+        let shape_model = self.const_i64("shape_model", &[0, 0, d]);
+        let kt = self.op(
+            "Transpose",
+            &[k],
+            vec![attr_ints("perm", &[0, 1, 3, 2])],
+            None,
+        );
+        let s = self.op("MatMul", &[q, &kt], vec![], None);
+        let mut s = self.op("Mul", &[&s, &scale], vec![], None);
+        if let Some(b) = bias {
+            s = self.op("Add", &[&s, b], vec![], None);
+        }
+        let p = self.op("Softmax", &[&s], vec![attr_i("axis", -1)], None);
+        let att = self.op("MatMul", &[&p, v], vec![], None);
+        let att = self.op(
+            "Transpose",
+            &[&att],
+            vec![attr_ints("perm", &[0, 2, 1, 3])],
+            None,
+        );
+        self.op("Reshape", &[&att, &shape_model], vec![], None)
+    }
+
+    /// The MLP half of a pre-LN block: `x + fc2(gelu(fc1(ln2(x))))`.
+    pub(crate) fn mlp_residual(
+        &mut self,
+        x: &str,
+        pre: &dyn Fn(&str) -> String,
+        eps: f32,
+    ) -> String {
+        let m = self.ln(x, &pre("ln2"), eps);
+        let f = self.lin(&m, &pre("fc1"));
+        let gl = self.gelu(&f);
+        let f2 = self.lin(&gl, &pre("fc2"));
+        self.op("Add", &[x, &f2], vec![], None)
+    }
+
+    /// The graph as an opset-17 model.
+    pub(crate) fn model(
+        self,
+        name: &str,
+        input: Vec<ValueInfoProto>,
+        output: Vec<ValueInfoProto>,
+    ) -> ModelProto {
+        ModelProto {
+            ir_version: 8,
+            opset_import: vec![OperatorSetIdProto {
+                domain: String::new(),
+                version: 17,
+            }],
+            producer_name: "choreo-train".into(),
+            producer_version: env!("CARGO_PKG_VERSION").into(),
+            graph: Some(GraphProto {
+                node: self.nodes,
+                name: name.into(),
+                initializer: self.inits,
+                input,
+                output,
+                ..Default::default()
+            }),
+            ..Default::default()
+        }
+    }
 }
 
 /// The model's graph as an ONNX `ModelProto`.
 pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
     let cfg = &model.cfg;
-    let w = weights(model)?;
     let mut g = Builder::default();
-    for (name, (dims, data)) in w {
-        g.f32(&name, &dims, data);
-    }
+    g.weights(model.tensors())?;
     let (d, h, dh) = (cfg.d_model as i64, cfg.n_heads as i64, cfg.d_head() as i64);
-    let shape_heads = g.i64("shape_heads", &[0, 0, h, dh]);
-    let shape_model = g.i64("shape_model", &[0, 0, d]);
-    let scale = g.scalar("attn_scale", 1.0 / (dh as f32).sqrt());
-    let half = g.scalar("half", 0.5);
-    let one = g.scalar("one", 1.0);
-    let inv_sqrt2 = g.scalar("inv_sqrt2", std::f32::consts::FRAC_1_SQRT_2);
     let eps = cfg.ln_eps as f32;
 
     let tok = g.op(
@@ -173,34 +300,15 @@ pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
         );
         x = g.op("Add", &[&x, &pb], vec![], None);
     }
-    let ln = |g: &mut Builder, x: &str, pre: &str| {
-        g.op(
-            "LayerNormalization",
-            &[x, &format!("{pre}.w"), &format!("{pre}.b")],
-            vec![attr_i("axis", -1), attr_f("epsilon", eps)],
-            None,
-        )
-    };
-    let lin = |g: &mut Builder, x: &str, pre: &str| {
-        let m = g.op("MatMul", &[x, &format!("{pre}.w")], vec![], None);
-        g.op("Add", &[&m, &format!("{pre}.b")], vec![], None)
-    };
     for l in 0..cfg.n_layers {
         let n = |s: &str| format!("h{l}.{s}");
-        let a = ln(&mut g, &x, &n("ln1"));
-        let heads = |g: &mut Builder, which: &str| {
-            let y = lin(g, &a, &n(which));
-            let y = g.op("Reshape", &[&y, &shape_heads], vec![], None);
-            g.op(
-                "Transpose",
-                &[&y],
-                vec![attr_ints("perm", &[0, 2, 1, 3])],
-                None,
-            )
-        };
-        let q = heads(&mut g, "q");
-        let k = heads(&mut g, "k");
-        let v = heads(&mut g, "v");
+        let a = g.ln(&x, &n("ln1"), eps);
+        let q = g.lin(&a, &n("q"));
+        let q = g.heads(&q, h, dh);
+        let k = g.lin(&a, &n("k"));
+        let k = g.heads(&k, h, dh);
+        let v = g.lin(&a, &n("v"));
+        let v = g.heads(&v, h, dh);
         let pk = format!("present_k_{l}");
         let pv = format!("present_v_{l}");
         g.op(
@@ -215,37 +323,12 @@ pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
             vec![attr_i("axis", 2)],
             Some(&pv),
         );
-        let kt = g.op(
-            "Transpose",
-            &[&pk],
-            vec![attr_ints("perm", &[0, 1, 3, 2])],
-            None,
-        );
-        let s = g.op("MatMul", &[&q, &kt], vec![], None);
-        let s = g.op("Mul", &[&s, &scale], vec![], None);
-        let s = g.op("Add", &[&s, "attn_bias"], vec![], None);
-        let p = g.op("Softmax", &[&s], vec![attr_i("axis", -1)], None);
-        let att = g.op("MatMul", &[&p, &pv], vec![], None);
-        let att = g.op(
-            "Transpose",
-            &[&att],
-            vec![attr_ints("perm", &[0, 2, 1, 3])],
-            None,
-        );
-        let att = g.op("Reshape", &[&att, &shape_model], vec![], None);
-        let o = lin(&mut g, &att, &n("o"));
+        let att = g.attend(&q, &pk, &pv, Some("attn_bias"), d, dh);
+        let o = g.lin(&att, &n("o"));
         x = g.op("Add", &[&x, &o], vec![], None);
-        let m = ln(&mut g, &x, &n("ln2"));
-        let f = lin(&mut g, &m, &n("fc1"));
-        let e = g.op("Mul", &[&f, &inv_sqrt2], vec![], None);
-        let e = g.op("Erf", &[&e], vec![], None);
-        let e = g.op("Add", &[&e, &one], vec![], None);
-        let hf = g.op("Mul", &[&f, &half], vec![], None);
-        let gl = g.op("Mul", &[&hf, &e], vec![], None);
-        let f2 = lin(&mut g, &gl, &n("fc2"));
-        x = g.op("Add", &[&x, &f2], vec![], None);
+        x = g.mlp_residual(&x, &n, eps);
     }
-    let xf = ln(&mut g, &x, "ln_f");
+    let xf = g.ln(&x, "ln_f", eps);
     let m = g.op("MatMul", &[&xf, "head.w"], vec![], None);
     g.op("Add", &[&m, "head.b"], vec![], Some("logits"));
     for (k, _) in &cfg.classes {
@@ -299,24 +382,7 @@ pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
         };
         outputs.push(vi);
     }
-    Ok(ModelProto {
-        ir_version: 8,
-        opset_import: vec![OperatorSetIdProto {
-            domain: String::new(),
-            version: 17,
-        }],
-        producer_name: "choreo-train".into(),
-        producer_version: env!("CARGO_PKG_VERSION").into(),
-        graph: Some(GraphProto {
-            node: g.nodes,
-            name: "choreo_motion_lm".into(),
-            initializer: g.inits,
-            input: inputs,
-            output: outputs,
-            ..Default::default()
-        }),
-        ..Default::default()
-    })
+    Ok(g.model("choreo_motion_lm", inputs, outputs))
 }
 
 /// Writes `dir/model.onnx` and `dir/manifest.json`; returns the manifest.

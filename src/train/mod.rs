@@ -5,6 +5,7 @@
 pub mod baselines;
 pub mod data;
 pub mod export;
+pub mod inbetween;
 pub mod model;
 pub mod parity;
 
@@ -301,7 +302,7 @@ pub fn train_step(
         );
     }
     let grads = total.backward()?;
-    opt.step(model, &grads)?;
+    opt.step(&model.params, &grads)?;
     Ok((loss, tokens))
 }
 

@@ -8,6 +8,44 @@ use crate::lm::ModelConfig;
 use candle_core::{DType, Device, Result, Tensor, Var, D};
 use std::collections::BTreeMap;
 
+/// LayerNorm over the last axis (composed, so it has gradients).
+pub fn layer_norm(x: &Tensor, w: &Tensor, b: &Tensor, eps: f64) -> Result<Tensor> {
+    let d = x.dim(D::Minus1)? as f64;
+    let mean = (x.sum_keepdim(D::Minus1)? / d)?;
+    let xc = x.broadcast_sub(&mean)?;
+    let var = (xc.sqr()?.sum_keepdim(D::Minus1)? / d)?;
+    let xn = xc.broadcast_div(&(var + eps)?.sqrt()?)?;
+    xn.broadcast_mul(w)?.broadcast_add(b)
+}
+
+/// `x · w + b`.
+pub fn linear(x: &Tensor, w: &Tensor, b: &Tensor) -> Result<Tensor> {
+    x.broadcast_matmul(w)?.broadcast_add(b)
+}
+
+/// Softmax over keys of `q · kᵀ · scale (+ bias)`; `q`, `k`: `[B, H, T, dh]`.
+pub fn attention_probs(
+    q: &Tensor,
+    k: &Tensor,
+    scale: f64,
+    bias: Option<&Tensor>,
+) -> Result<Tensor> {
+    let mut scores = (q.matmul(&k.transpose(2, 3)?.contiguous()?)? * scale)?;
+    if let Some(b) = bias {
+        scores = scores.broadcast_add(b)?;
+    }
+    let mx = scores.max_keepdim(D::Minus1)?;
+    let e = scores.broadcast_sub(&mx)?.exp()?;
+    e.broadcast_div(&e.sum_keepdim(D::Minus1)?)
+}
+
+pub(crate) fn normal(shape: &[usize], std: f64, dev: &Device) -> Result<Var> {
+    Var::from_tensor(&Tensor::randn(0f32, std as f32, shape, dev)?)
+}
+pub(crate) fn filled(shape: &[usize], v: f32, dev: &Device) -> Result<Var> {
+    Var::from_tensor(&(Tensor::ones(shape, DType::F32, dev)? * v as f64)?)
+}
+
 /// Parameters by name (the names the exporter and checkpoints use).
 pub struct Gpt {
     pub cfg: ModelConfig,
@@ -17,13 +55,6 @@ pub struct Gpt {
 
 /// One layer's keys and values, `[B, H, S, dh]`.
 pub type KvPair = (Tensor, Tensor);
-
-fn normal(shape: &[usize], std: f64, dev: &Device) -> Result<Var> {
-    Var::from_tensor(&Tensor::randn(0f32, std as f32, shape, dev)?)
-}
-fn filled(shape: &[usize], v: f32, dev: &Device) -> Result<Var> {
-    Var::from_tensor(&(Tensor::ones(shape, DType::F32, dev)? * v as f64)?)
-}
 
 impl Gpt {
     /// A freshly initialised model (N(0, 0.02) weights, residual
@@ -81,18 +112,16 @@ impl Gpt {
     }
 
     fn layer_norm(&self, x: &Tensor, pre: &str) -> Result<Tensor> {
-        let d = self.cfg.d_model as f64;
-        let mean = (x.sum_keepdim(D::Minus1)? / d)?;
-        let xc = x.broadcast_sub(&mean)?;
-        let var = (xc.sqr()?.sum_keepdim(D::Minus1)? / d)?;
-        let xn = xc.broadcast_div(&(var + self.cfg.ln_eps)?.sqrt()?)?;
-        xn.broadcast_mul(self.w(&format!("{pre}.w")))?
-            .broadcast_add(self.w(&format!("{pre}.b")))
+        layer_norm(
+            x,
+            self.w(&format!("{pre}.w")),
+            self.w(&format!("{pre}.b")),
+            self.cfg.ln_eps,
+        )
     }
 
     fn linear(&self, x: &Tensor, pre: &str) -> Result<Tensor> {
-        x.broadcast_matmul(self.w(&format!("{pre}.w")))?
-            .broadcast_add(self.w(&format!("{pre}.b")))
+        linear(x, self.w(&format!("{pre}.w")), self.w(&format!("{pre}.b")))
     }
 
     fn drop(&self, x: Tensor, train: bool) -> Result<Tensor> {
@@ -146,12 +175,7 @@ impl Gpt {
                 k = Tensor::cat(&[&p[l].0, &k], 2)?;
                 v = Tensor::cat(&[&p[l].1, &v], 2)?;
             }
-            let scores =
-                (q.matmul(&k.transpose(2, 3)?.contiguous()?)? * scale)?.broadcast_add(bias)?;
-            let mx = scores.max_keepdim(D::Minus1)?;
-            let e = scores.broadcast_sub(&mx)?.exp()?;
-            let probs = e.broadcast_div(&e.sum_keepdim(D::Minus1)?)?;
-            let probs = self.drop(probs, train)?;
+            let probs = self.drop(attention_probs(&q, &k, scale, Some(bias))?, train)?;
             let att = probs
                 .matmul(&v)?
                 .transpose(1, 2)?
@@ -233,10 +257,14 @@ impl AdamW {
     }
 
     /// One update; returns the gradient norm before clipping.
-    pub fn step(&mut self, model: &Gpt, grads: &candle_core::backprop::GradStore) -> Result<f64> {
+    pub fn step(
+        &mut self,
+        params: &BTreeMap<String, Var>,
+        grads: &candle_core::backprop::GradStore,
+    ) -> Result<f64> {
         let mut sq = 0f64;
         let mut gs = Vec::new();
-        for (name, var) in &model.params {
+        for (name, var) in params {
             if let Some(g) = grads.get(var.as_tensor()) {
                 sq += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
                 // Detached: a gradient keeps its step's graph alive otherwise.
