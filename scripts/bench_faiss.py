@@ -5,8 +5,10 @@ choreo's exact top-10. Same parameters as choreo: M=24, efConstruction=200,
 efSearch=128, cosine (inner product on L2-normalised vectors).
 
 Usage: bench_faiss.py DIR N [N ...]
+FAISS_M and FAISS_EFC override M and efConstruction (the 1M run used 16 / 100,
+as choreo's 1M run did).
 """
-import json, sys, time
+import json, os, sys, time
 import numpy as np
 import faiss
 
@@ -18,8 +20,9 @@ for n in map(int, sys.argv[2:]):
     gt = np.load(f"{d}/gt_{n}.npy").astype(np.int64)
     faiss.normalize_L2(x)
     faiss.omp_set_num_threads(2)
-    ix = faiss.IndexHNSWFlat(x.shape[1], 24, faiss.METRIC_INNER_PRODUCT)
-    ix.hnsw.efConstruction = 200
+    m, efc = int(os.environ.get("FAISS_M", 24)), int(os.environ.get("FAISS_EFC", 200))
+    ix = faiss.IndexHNSWFlat(x.shape[1], m, faiss.METRIC_INNER_PRODUCT)
+    ix.hnsw.efConstruction = efc
     t = time.perf_counter()
     ix.add(x)
     build = time.perf_counter() - t
@@ -38,5 +41,5 @@ for n in map(int, sys.argv[2:]):
         lat = np.sort(lat)
         res[name] = {"p50_ms": float(np.percentile(lat, 50)), "p95_ms": float(np.percentile(lat, 95)),
                      "qps_1thread": float(1e3 * len(lat) / lat.sum()), "recall_at_10": rec / len(q)}
-    res["faiss_hnsw"]["build_s"] = build
+    res["faiss_hnsw"].update({"build_s": build, "m": m, "ef_construction": efc})
     print(json.dumps({"n": n, "dim": x.shape[1], "queries": len(q), **res}))

@@ -275,6 +275,11 @@ enum BenchCmd {
         m: usize,
         #[arg(long, default_value_t = 200)]
         ef_construction: usize,
+        /// With --dump: write the vectors and the exact top-10 only, without
+        /// building choreo's HNSW (for FAISS at sizes where that build takes
+        /// most of an hour).
+        #[arg(long, requires = "dump")]
+        dump_only: bool,
     },
     /// DP keyframe selection time on a clip looped to --frames frames (60 fps):
     /// per 4/4 measure at --bpm, and over the whole clip (exact).
@@ -625,6 +630,7 @@ fn run(cli: Cli) -> Result<()> {
                     ef_search,
                     m,
                     ef_construction,
+                    dump_only,
                 },
         } => {
             let metric = Metric::parse(&metric).with_context(|| format!("--metric: '{metric}'"))?;
@@ -633,7 +639,15 @@ fn run(cli: Cli) -> Result<()> {
                 ef_construction,
                 ef_search,
             };
-            bench_index(&sizes, dim, queries, metric, dump.as_deref(), params)
+            bench_index(
+                &sizes,
+                dim,
+                queries,
+                metric,
+                dump.as_deref(),
+                params,
+                dump_only,
+            )
         }
         Cmd::Bench {
             cmd: BenchCmd::Embed { data, dump },
@@ -941,6 +955,7 @@ fn bench_index(
     metric: Metric,
     dump: Option<&std::path::Path>,
     params: HnswParams,
+    dump_only: bool,
 ) -> Result<()> {
     use choreo::index::hnsw::HnswIndex;
     use choreo::index::{recall, synthetic_latent, AnnIndex, ExactIndex};
@@ -977,6 +992,15 @@ fn bench_index(
                 .map(|h| h.iter().map(|x| x.id as f32).collect())
                 .collect();
             write_npy_f32(&d.join(format!("gt_{n}.npy")), &gt)?;
+        }
+        if dump_only {
+            lat_e.sort_by(f64::total_cmp);
+            println!(
+                "{}",
+                json!({"n": n, "dim": dim, "metric": metric, "queries": nq, "generate_s": gen_s,
+                       "exact": {"p50_ms": percentile(&lat_e, 0.5), "p95_ms": percentile(&lat_e, 0.95)}})
+            );
+            continue;
         }
         let t = Instant::now();
         let mut h = HnswIndex::new(metric, dim, n, params);

@@ -35,7 +35,7 @@ print("return {" + ",".join("{%d,%.3f}" % m for m in ok) + "}")
 PY
 cp deploy/load/common.lua "$work/"
 export LOAD_DIR="$work"
-for endpoint in query generate; do
+for endpoint in ${ENDPOINTS:-query generate}; do
   # Warm up (builds the HNSW index on the first query).
   curl -s -o /dev/null -X POST "$url/v1/query" -H 'content-type: application/json' \
     -d "{\"motion\":{\"id\":$(sed -n 's/return {{\([0-9]*\),.*/\1/p' "$work/ids.lua")}}" || true

@@ -173,6 +173,18 @@ enum Cmd {
     /// *Genre* with --condition genre), export it to OUT, and compare it
     /// with SLERP and Bézier on the held-out clips.
     Inbetween(Box<InbetweenArgs>),
+    /// Held-out comparison of an exported in-betweener with SLERP and
+    /// Bézier, per corpus and over all (the same split as training).
+    EvalInbetween {
+        #[arg(long)]
+        model: PathBuf,
+        #[command(flatten)]
+        data: DataArgs,
+        #[arg(long, default_values_t = vec![10, 20, 30], value_delimiter = ',')]
+        eval_spacing: Vec<usize>,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Args, Clone)]
@@ -182,6 +194,10 @@ struct InbetweenArgs {
     /// Output folder: model.onnx, manifest.json, eval.json.
     #[arg(long)]
     out: PathBuf,
+    /// Fine-tune: start from this in-betweener folder (its architecture and
+    /// conditioning; the size flags are ignored).
+    #[arg(long)]
+    init: Option<PathBuf>,
     /// Frames per window (60 fps; even).
     #[arg(long, default_value_t = 64)]
     window: usize,
@@ -244,6 +260,12 @@ fn run(cli: Cli) -> Result<()> {
         }
         Cmd::EvalClassify { checkpoint, data } => eval_classify(&checkpoint, &data),
         Cmd::Inbetween(a) => inbetween(*a),
+        Cmd::EvalInbetween {
+            model,
+            data,
+            eval_spacing,
+            json,
+        } => eval_inbetween(&model, &data, &eval_spacing, json),
         Cmd::BenchForward {
             checkpoint,
             repeats,
@@ -898,7 +920,11 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
             Some((kind.clone(), values.into_iter().collect::<Vec<_>>()))
         }
     };
-    let cfg = InbetweenConfig { condition, ..cfg };
+    let init = a.init.as_deref().map(Inbetweener::load).transpose()?;
+    let cfg = match &init {
+        Some(m) => m.manifest.config.clone(),
+        None => InbetweenConfig { condition, ..cfg },
+    };
     cfg.validate("--window/--d-model/--heads")?;
     let (train, val) = ib::prepare(motions, a.data.val_fraction, cfg.window + 1)?;
     eprintln!(
@@ -909,6 +935,10 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
     );
     let dev = choreo::train::device();
     let net = ib::InbetweenNet::new(cfg.clone(), &dev)?;
+    if let Some(m) = &init {
+        net.load_from_export(m, &dev)?;
+        eprintln!("fine-tuning from {}", m.onnx_path.display());
+    }
     eprintln!("{} parameters", net.n_params());
     let settings = ib::Settings {
         steps: a.steps,
@@ -948,6 +978,7 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
     let secs = t0.elapsed().as_secs_f64();
     // Export, load back in tract, check parity, evaluate the export.
     let training = serde_json::json!({"settings": settings, "steps_done": steps, "seconds": secs,
+        "init": a.init.as_ref().map(|p| p.display().to_string()),
         "train_clips": train.len(), "val_clips": val.len(),
         "final_loss_ema": ema});
     ib::export(
@@ -979,13 +1010,54 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
         serde_json::to_string_pretty(&report)? + "\n",
     )?;
     println!("trained {steps} steps in {secs:.0} s; tract vs candle max |Δ| {parity:.2e}");
-    println!("held-out MSE on FK positions, cm² (mean over clips):");
+    print_inbetween_rows("all held-out clips", &rows);
+    Ok(())
+}
+
+fn print_inbetween_rows(title: &str, rows: &[choreo::train::inbetween::EvalRow]) {
+    println!("{title}: held-out MSE on FK positions, cm² (mean over clips)");
     println!("spacing  clips    slerp  bezier-avg  learned  (bezier fitted to the clip)");
-    for r in &rows {
+    for r in rows {
         println!(
             "{:>7}  {:>5}  {:>7.3}  {:>10.3}  {:>7.3}  ({:.3})",
             r.spacing, r.clips, r.slerp_cm2, r.bezier_avg_cm2, r.learned_cm2, r.bezier_fit_cm2
         );
+    }
+}
+
+fn eval_inbetween(model: &Path, d: &DataArgs, spacings: &[usize], json: bool) -> Result<()> {
+    use choreo::train::inbetween as ib;
+    let model = choreo::lm::inbetween::Inbetweener::load(model)?;
+    let dirs = choreo::train::data::corpus_dirs(&d.data, &d.corpora)?;
+    let (motions, _) = choreo::train::data::read_motions(&dirs)?;
+    let (train, val) = ib::prepare(motions, d.val_fraction, model.config().window + 1)?;
+    let mut out = Vec::new();
+    let mut corpora: Vec<String> = val.iter().map(|c| c.corpus.clone()).collect();
+    corpora.dedup();
+    for c in corpora {
+        let sub: Vec<ib::Clip> = val
+            .iter()
+            .filter(|x| x.corpus == c)
+            .map(|x| ib::Clip {
+                corpus: x.corpus.clone(),
+                name: x.name.clone(),
+                labels: x.labels.clone(),
+                motion: x.motion.clone(),
+            })
+            .collect();
+        let rows = ib::evaluate(&model, &train, &sub, spacings)?;
+        let names: Vec<String> = sub.iter().map(|x| x.name.clone()).collect();
+        if !json {
+            print_inbetween_rows(&format!("{c} ({} clips)", sub.len()), &rows);
+        }
+        out.push(serde_json::json!({"corpus": c, "clips": names, "rows": rows}));
+    }
+    let rows = ib::evaluate(&model, &train, &val, spacings)?;
+    if json {
+        out.push(serde_json::json!({"corpus": "all", "rows": rows}));
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        print_inbetween_rows("all", &rows);
     }
     Ok(())
 }

@@ -255,6 +255,8 @@ type Plan = Arc<TypedRunnableModel>;
 /// An exported in-betweener loaded in tract.
 pub struct Inbetweener {
     pub manifest: InbetweenManifest,
+    /// The ONNX file it was loaded from.
+    pub onnx_path: std::path::PathBuf,
     plan: Plan,
 }
 
@@ -292,7 +294,11 @@ impl Inbetweener {
                 .into_runnable()
         })()
         .map_err(|e| LmError::invalid(onnx_path.display().to_string(), "graph", e.to_string()))?;
-        Ok(Inbetweener { manifest: m, plan })
+        Ok(Inbetweener {
+            manifest: m,
+            onnx_path,
+            plan,
+        })
     }
 
     pub fn config(&self) -> &InbetweenConfig {

@@ -123,7 +123,45 @@ impl InbetweenNet {
             .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
             .collect()
     }
+
+    /// Loads the weights of an exported in-betweener (its ONNX
+    /// initialisers, by name); every parameter must be there with its shape.
+    pub fn load_from_export(&self, model: &Inbetweener, dev: &Device) -> Result<()> {
+        let file = model.onnx_path.display().to_string();
+        let bytes = std::fs::read(&model.onnx_path)?;
+        let proto = tract_onnx::pb::ModelProto::decode(bytes.as_slice())
+            .map_err(|e| anyhow::anyhow!("{file}: not an ONNX model: {e}"))?;
+        let graph = proto
+            .graph
+            .ok_or_else(|| anyhow::anyhow!("{file}: no graph"))?;
+        let inits: BTreeMap<&str, &tract_onnx::pb::TensorProto> = graph
+            .initializer
+            .iter()
+            .map(|t| (t.name.as_str(), t))
+            .collect();
+        for (name, var) in &self.params {
+            let t = inits
+                .get(name.as_str())
+                .ok_or_else(|| anyhow::anyhow!("{file}: field `{name}`: missing"))?;
+            let dims: Vec<usize> = t.dims.iter().map(|&d| d as usize).collect();
+            if dims != var.dims() || t.raw_data.len() != 4 * var.elem_count() {
+                bail!(
+                    "{file}: field `{name}`: shape {dims:?}, the configuration wants {:?}",
+                    var.dims()
+                );
+            }
+            let data: Vec<f32> = t
+                .raw_data
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            var.set(&Tensor::from_vec(data, dims, dev)?)?;
+        }
+        Ok(())
+    }
 }
+
+
 
 /// The network as an ONNX graph: input `x [B, window, in_dim]`, output
 /// `residual [B, window, POSE_DIM]`.
