@@ -366,6 +366,7 @@ fn inbetweener_export_parity_rebuild_and_bad_manifests() {
         spacing: (12, 12),
         seed: 0,
         max_seconds: None,
+        corpus_share: None,
     };
     ib::train(&net, &clips, &settings, &mut rng, &dev, &mut |_, _, _| {}).unwrap();
     let after = ib::loss(&net, &fixed, &dev)

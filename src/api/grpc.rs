@@ -2,6 +2,7 @@
 //! and calls the operation of [`super`].
 
 use super::{ApiError, AppState, InterpolateParams, KeyframesParams, MotionInput, QueryParams};
+use crate::motion::io::json::MotionParts;
 use crate::motion::Motion;
 use std::sync::Arc;
 use tokio_stream::StreamExt;
@@ -38,12 +39,14 @@ fn source(field: &str, s: Option<pb::MotionSource>) -> Result<MotionInput, ApiEr
         Some(pb::motion_source::Source::Motion(m)) => {
             Ok(MotionInput::Inline(super::motion_from_parts(
                 &format!("{field}.motion"),
-                &m.name,
-                m.fps,
-                &m.skeleton,
-                triples(&format!("{field}.motion.rotations"), &m.rotations)?,
-                triples(&format!("{field}.motion.translation"), &m.translation)?,
-                m.labels.into_iter().collect(),
+                MotionParts {
+                    rotations: triples(&format!("{field}.motion.rotations"), &m.rotations)?,
+                    translation: triples(&format!("{field}.motion.translation"), &m.translation)?,
+                    name: m.name,
+                    fps: m.fps,
+                    skeleton: m.skeleton,
+                    labels: m.labels.into_iter().collect(),
+                },
             )?))
         }
         Some(pb::motion_source::Source::File(f)) => Ok(MotionInput::File {
@@ -174,12 +177,14 @@ impl Choreo for ChoreoGrpc {
                 let motion = (|| {
                     super::motion_from_parts(
                         "frame",
-                        "duet",
-                        frame.fps,
-                        &frame.skeleton,
-                        triples("frame.rotations", &frame.rotations)?,
-                        triples("frame.translation", &frame.translation)?,
-                        Default::default(),
+                        MotionParts {
+                            name: "duet".into(),
+                            fps: frame.fps,
+                            skeleton: frame.skeleton.clone(),
+                            rotations: triples("frame.rotations", &frame.rotations)?,
+                            translation: triples("frame.translation", &frame.translation)?,
+                            labels: Default::default(),
+                        },
                     )
                 })();
                 let out = match motion {

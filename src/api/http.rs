@@ -15,6 +15,7 @@ use serde_json::json;
 use std::sync::Arc;
 
 pub use crate::motion::io::json::MotionJson;
+use crate::motion::io::json::MotionParts;
 
 /// The REST API's OpenAPI 3.1 description (checked in; a test holds it to
 /// the router).
@@ -51,12 +52,14 @@ fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
             let rot: Vec<[f64; 3]> = m.rotations.into_iter().flatten().collect();
             Ok(MotionInput::Inline(super::motion_from_parts(
                 &format!("{field}.motion"),
-                &m.name,
-                m.fps,
-                &m.skeleton,
-                rot,
-                m.translation,
-                m.labels,
+                MotionParts {
+                    name: m.name,
+                    fps: m.fps,
+                    skeleton: m.skeleton,
+                    rotations: rot,
+                    translation: m.translation,
+                    labels: m.labels,
+                },
             )?))
         }
         (None, Some(f), None) => {

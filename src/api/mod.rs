@@ -14,7 +14,7 @@ use crate::features::interpolate::{lowpass as lowpass_channels, to_f64, Interpol
 use crate::features::{rows72, smpl24_at_60, Embedding};
 use crate::index::Metric;
 use crate::motion::io::bvh::{write_bvh, BvhWriteOptions};
-use crate::motion::io::json::write_json;
+use crate::motion::io::json::{write_json, MotionParts};
 use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::{Labels, Motion, MotionError};
 pub use crate::service::ingest::Stored;
@@ -140,29 +140,15 @@ pub enum MotionInput {
     Stored(i64),
 }
 
-/// A motion from flat arrays (`rotations`: frames × joints × 3,
-/// `translation`: frames × 3) on a named SMPL skeleton; errors name
-/// `field.<part>`.
-pub fn motion_from_parts(
-    field: &str,
-    name: &str,
-    fps: f64,
-    skeleton: &str,
-    rotations: Vec<[f64; 3]>,
-    translation: Vec<[f64; 3]>,
-    labels: Labels,
-) -> Result<Motion, ApiError> {
-    let name = if name.is_empty() { "request" } else { name };
-    crate::motion::io::json::motion_from_parts(
-        name,
-        name,
-        fps,
-        skeleton,
-        rotations,
-        translation,
-        labels,
-    )
-    .map_err(|e| prefix(field, e.into()))
+/// The motion of inline parts; errors name `field.<part>`.
+pub fn motion_from_parts(field: &str, mut parts: MotionParts) -> Result<Motion, ApiError> {
+    if parts.name.is_empty() {
+        parts.name = "request".into();
+    }
+    let name = parts.name.clone();
+    parts
+        .into_motion(&name)
+        .map_err(|e| prefix(field, e.into()))
 }
 
 fn prefix(field: &str, e: ApiError) -> ApiError {

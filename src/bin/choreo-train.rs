@@ -219,6 +219,10 @@ struct InbetweenArgs {
     /// Smallest and largest keyframe spacing drawn in training (frames).
     #[arg(long, default_values_t = vec![6, 40], num_args = 2)]
     spacing: Vec<usize>,
+    /// Draw this share of each batch from one corpus: CORPUS=FRACTION
+    /// (e.g. aistpp=0.25).
+    #[arg(long)]
+    corpus_share: Option<String>,
     /// Held-out spacings evaluated (frames at 60 fps).
     #[arg(long, default_values_t = vec![10, 20, 30], value_delimiter = ',')]
     eval_spacing: Vec<usize>,
@@ -926,7 +930,26 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
         None => InbetweenConfig { condition, ..cfg },
     };
     cfg.validate("--window/--d-model/--heads")?;
-    let (train, val) = ib::prepare(motions, a.data.val_fraction, cfg.window + 1)?;
+    let (train, val) = ib::prepare(
+        motions,
+        a.data.val_fraction,
+        cfg.window + 1,
+        !a.data.no_mirror,
+    )?;
+    let corpus_share = match &a.corpus_share {
+        None => None,
+        Some(v) => {
+            let (c, f) = v
+                .split_once('=')
+                .with_context(|| format!("--corpus-share: '{v}' is not CORPUS=FRACTION"))?;
+            let f: f64 = f
+                .parse()
+                .ok()
+                .filter(|f| (0.0..=1.0).contains(f))
+                .with_context(|| format!("--corpus-share: '{f}' is not a fraction in 0..=1"))?;
+            Some((c.to_string(), f))
+        }
+    };
     eprintln!(
         "{} training clips, {} held out ({} corpora)",
         train.len(),
@@ -949,6 +972,7 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
         spacing: (a.spacing[0].max(2), a.spacing[1].max(a.spacing[0].max(2))),
         seed: a.seed,
         max_seconds: (a.max_seconds > 0.0).then_some(a.max_seconds),
+        corpus_share,
     };
     let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed);
     let t0 = std::time::Instant::now();
@@ -1030,7 +1054,7 @@ fn eval_inbetween(model: &Path, d: &DataArgs, spacings: &[usize], json: bool) ->
     let model = choreo::lm::inbetween::Inbetweener::load(model)?;
     let dirs = choreo::train::data::corpus_dirs(&d.data, &d.corpora)?;
     let (motions, _) = choreo::train::data::read_motions(&dirs)?;
-    let (train, val) = ib::prepare(motions, d.val_fraction, model.config().window + 1)?;
+    let (train, val) = ib::prepare(motions, d.val_fraction, model.config().window + 1, false)?;
     let mut out = Vec::new();
     let mut corpora: Vec<String> = val.iter().map(|c| c.corpus.clone()).collect();
     corpora.dedup();

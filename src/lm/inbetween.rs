@@ -62,15 +62,7 @@ impl InbetweenConfig {
     }
     pub fn validate(&self, file: &str) -> Result<(), LmError> {
         let bad = |field: &str, reason: String| LmError::invalid(file, field, reason);
-        if self.d_model == 0 || self.n_heads == 0 || self.d_model % self.n_heads != 0 {
-            return Err(bad(
-                "config.n_heads",
-                format!(
-                    "d_model {} is not a positive multiple of n_heads {}",
-                    self.d_model, self.n_heads
-                ),
-            ));
-        }
+        super::check_heads(file, self.d_model, self.n_heads)?;
         if self.n_layers == 0 || self.d_ff == 0 {
             return Err(bad("config", "n_layers and d_ff must be positive".into()));
         }

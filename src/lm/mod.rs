@@ -150,15 +150,7 @@ impl ModelConfig {
     /// Checks that the sizes fit together.
     pub fn validate(&self, file: &str) -> Result<(), LmError> {
         let bad = |field: &str, reason: String| LmError::invalid(file, field, reason);
-        if self.d_model == 0 || self.n_heads == 0 || self.d_model % self.n_heads != 0 {
-            return Err(bad(
-                "config.n_heads",
-                format!(
-                    "d_model {} is not a positive multiple of n_heads {}",
-                    self.d_model, self.n_heads
-                ),
-            ));
-        }
+        check_heads(file, self.d_model, self.n_heads)?;
         if self.n_layers == 0 || self.d_ff == 0 || self.vocab_size == 0 {
             return Err(bad(
                 "config",
@@ -173,6 +165,18 @@ impl ModelConfig {
         }
         Ok(())
     }
+}
+
+/// `d_model` splits into `n_heads` heads.
+pub fn check_heads(file: &str, d_model: usize, n_heads: usize) -> Result<(), LmError> {
+    if d_model == 0 || n_heads == 0 || d_model % n_heads != 0 {
+        return Err(LmError::invalid(
+            file,
+            "config.n_heads",
+            format!("d_model {d_model} is not a positive multiple of n_heads {n_heads}"),
+        ));
+    }
+    Ok(())
 }
 
 /// Errors of loading and running a model: every one names the file or the

@@ -135,6 +135,17 @@ pub fn vocabulary_for(
     }
 }
 
+/// How many of a corpus's `n` sequences (sorted by a hash of their names)
+/// are held out: `val_fraction` of them, at least one when there are two
+/// or more, never all.
+pub fn held_out_count(n: usize, val_fraction: f64) -> usize {
+    if n < 2 {
+        0
+    } else {
+        ((n as f64 * val_fraction).round() as usize).clamp(1, n - 1)
+    }
+}
+
 /// Tokenizes and splits by sequence: within each corpus the sequences are
 /// ordered by a hash of their name and the first `val_fraction` (at least
 /// one) are held out. Mirrors are added to the training side only.
@@ -152,11 +163,7 @@ pub fn build(
     let (mut train, mut val) = (Vec::new(), Vec::new());
     for (corpus, mut list) in by {
         list.sort_by_key(|m| sha256_hex(m.name.as_bytes()));
-        let n_val = if list.len() < 2 {
-            0
-        } else {
-            ((list.len() as f64 * val_fraction).round() as usize).clamp(1, list.len() - 1)
-        };
+        let n_val = held_out_count(list.len(), val_fraction);
         for (i, m) in list.into_iter().enumerate() {
             let name = m.name.clone();
             // Retarget / resample once; the tokens and the mirror share it.

@@ -174,6 +174,26 @@ impl Builder {
         name.into()
     }
 
+    /// Queries, keys and values of a pre-LN block, `[B, H, T, dh]` each.
+    pub(crate) fn qkv(
+        &mut self,
+        x: &str,
+        pre: &dyn Fn(&str) -> String,
+        eps: f32,
+        h: i64,
+        dh: i64,
+    ) -> (String, String, String) {
+        let a = self.ln(x, &pre("ln1"), eps);
+        let mut out = ["q", "k", "v"].map(|w| {
+            let y = self.lin(&a, &pre(w));
+            self.heads(&y, h, dh)
+        });
+        let v = std::mem::take(&mut out[2]);
+        let k = std::mem::take(&mut out[1]);
+        let q = std::mem::take(&mut out[0]);
+        (q, k, v)
+    }
+
     /// `[B, T, d]` → `[B, H, T, dh]`.
     pub(crate) fn heads(&mut self, y: &str, h: i64, dh: i64) -> String {
         let shape = self.const_i64("shape_heads", &[0, 0, h, dh]);
@@ -302,13 +322,7 @@ pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
     }
     for l in 0..cfg.n_layers {
         let n = |s: &str| format!("h{l}.{s}");
-        let a = g.ln(&x, &n("ln1"), eps);
-        let q = g.lin(&a, &n("q"));
-        let q = g.heads(&q, h, dh);
-        let k = g.lin(&a, &n("k"));
-        let k = g.heads(&k, h, dh);
-        let v = g.lin(&a, &n("v"));
-        let v = g.heads(&v, h, dh);
+        let (q, k, v) = g.qkv(&x, &n, eps, h, dh);
         let pk = format!("present_k_{l}");
         let pv = format!("present_v_{l}");
         g.op(

@@ -6,7 +6,7 @@
 //! hash of their names, per corpus, like the language model's data.
 
 use super::export::{value_info, Builder, DataType, ONNX_FILE};
-use super::model::{attention_probs, filled, layer_norm, linear, normal, AdamW};
+use super::model::{attention_probs, filled, insert_blocks, layer_norm, linear, normal, AdamW};
 use crate::features::smpl24_at_60;
 use crate::keyframes::metrics::mse;
 use crate::lm::inbetween::{
@@ -33,30 +33,11 @@ pub struct InbetweenNet {
 impl InbetweenNet {
     pub fn new(cfg: InbetweenConfig, dev: &Device) -> candle_core::Result<InbetweenNet> {
         let (d, ff, l) = (cfg.d_model, cfg.d_ff, cfg.n_layers);
-        let resid = 0.02 / (2.0 * l as f64).sqrt();
         let mut p = BTreeMap::new();
         p.insert("in.w".into(), normal(&[cfg.in_dim(), d], 0.02, dev)?);
         p.insert("in.b".into(), filled(&[d], 0.0, dev)?);
         p.insert("pos_emb".into(), normal(&[cfg.window, d], 0.02, dev)?);
-        for i in 0..l {
-            let n = |s: &str| format!("h{i}.{s}");
-            p.insert(n("ln1.w"), filled(&[d], 1.0, dev)?);
-            p.insert(n("ln1.b"), filled(&[d], 0.0, dev)?);
-            for w in ["q", "k", "v"] {
-                p.insert(n(&format!("{w}.w")), normal(&[d, d], 0.02, dev)?);
-                p.insert(n(&format!("{w}.b")), filled(&[d], 0.0, dev)?);
-            }
-            p.insert(n("o.w"), normal(&[d, d], resid, dev)?);
-            p.insert(n("o.b"), filled(&[d], 0.0, dev)?);
-            p.insert(n("ln2.w"), filled(&[d], 1.0, dev)?);
-            p.insert(n("ln2.b"), filled(&[d], 0.0, dev)?);
-            p.insert(n("fc1.w"), normal(&[d, ff], 0.02, dev)?);
-            p.insert(n("fc1.b"), filled(&[ff], 0.0, dev)?);
-            p.insert(n("fc2.w"), normal(&[ff, d], resid, dev)?);
-            p.insert(n("fc2.b"), filled(&[d], 0.0, dev)?);
-        }
-        p.insert("ln_f.w".into(), filled(&[d], 1.0, dev)?);
-        p.insert("ln_f.b".into(), filled(&[d], 0.0, dev)?);
+        insert_blocks(&mut p, l, d, ff, dev)?;
         // A zero output layer: training starts from SLERP exactly.
         p.insert("out.w".into(), filled(&[d, POSE_DIM], 0.0, dev)?);
         p.insert("out.b".into(), filled(&[POSE_DIM], 0.0, dev)?);
@@ -161,8 +142,6 @@ impl InbetweenNet {
     }
 }
 
-
-
 /// The network as an ONNX graph: input `x [B, window, in_dim]`, output
 /// `residual [B, window, POSE_DIM]`.
 pub fn onnx_model(net: &InbetweenNet) -> Result<tract_onnx::pb::ModelProto> {
@@ -175,13 +154,7 @@ pub fn onnx_model(net: &InbetweenNet) -> Result<tract_onnx::pb::ModelProto> {
     let mut x = g.op("Add", &[&x, "pos_emb"], vec![], None);
     for l in 0..cfg.n_layers {
         let n = |s: &str| format!("h{l}.{s}");
-        let a = g.ln(&x, &n("ln1"), eps);
-        let q = g.lin(&a, &n("q"));
-        let q = g.heads(&q, h, dh);
-        let k = g.lin(&a, &n("k"));
-        let k = g.heads(&k, h, dh);
-        let v = g.lin(&a, &n("v"));
-        let v = g.heads(&v, h, dh);
+        let (q, k, v) = g.qkv(&x, &n, eps, h, dh);
         let att = g.attend(&q, &k, &v, None, d, dh);
         let o = g.lin(&att, &n("o"));
         x = g.op("Add", &[&x, &o], vec![], None);
@@ -243,10 +216,12 @@ pub struct Clip {
 /// Brings motions to SMPL-24 at 60 fps and splits them per corpus by a
 /// hash of the name (`val_fraction` held out, at least one when a corpus
 /// has two clips or more). Clips shorter than `min_frames` are dropped.
+/// With `mirror`, every training clip also gets its left/right mirror.
 pub fn prepare(
     motions: Vec<(String, Motion)>,
     val_fraction: f64,
     min_frames: usize,
+    mirror: bool,
 ) -> Result<(Vec<Clip>, Vec<Clip>)> {
     let mut by: BTreeMap<String, Vec<Motion>> = BTreeMap::new();
     for (c, m) in motions {
@@ -255,11 +230,7 @@ pub fn prepare(
     let (mut train, mut val) = (Vec::new(), Vec::new());
     for (corpus, mut list) in by {
         list.sort_by_key(|m| sha256_hex(m.name.as_bytes()));
-        let n_val = if list.len() < 2 {
-            0
-        } else {
-            ((list.len() as f64 * val_fraction).round() as usize).clamp(1, list.len() - 1)
-        };
+        let n_val = super::data::held_out_count(list.len(), val_fraction);
         for (i, m) in list.into_iter().enumerate() {
             let s = match smpl24_at_60(&m) {
                 Ok(s) if s.frames() >= min_frames => s,
@@ -278,6 +249,17 @@ pub fn prepare(
             if i < n_val {
                 val.push(c)
             } else {
+                if mirror {
+                    match c.motion.mirror() {
+                        Ok(mm) => train.push(Clip {
+                            corpus: c.corpus.clone(),
+                            name: format!("{} (mirrored)", c.name),
+                            labels: c.labels.clone(),
+                            motion: mm,
+                        }),
+                        Err(e) => eprintln!("no mirror for {}: {e}", c.name),
+                    }
+                }
                 train.push(c)
             }
         }
@@ -374,6 +356,9 @@ pub struct Settings {
     pub spacing: (usize, usize),
     pub seed: u64,
     pub max_seconds: Option<f64>,
+    /// Draw this fraction of each batch from one corpus (e.g. 0.25 of
+    /// `aistpp`), the rest by length from all clips.
+    pub corpus_share: Option<(String, f64)>,
 }
 
 /// Train; `log(step, loss, lr)` is called every `every` steps.
@@ -393,6 +378,10 @@ pub fn train(
         acc += c.motion.frames();
         cum.push(acc);
     }
+    let favoured: Vec<&Clip> = match &s.corpus_share {
+        Some((corpus, _)) => clips.iter().filter(|c| &c.corpus == corpus).collect(),
+        None => Vec::new(),
+    };
     let t0 = std::time::Instant::now();
     let mut done = 0;
     for step in 0..s.steps {
@@ -410,8 +399,15 @@ pub fn train(
         opt.lr = lr;
         let mut exs = Vec::with_capacity(s.batch);
         while exs.len() < s.batch {
-            let r = rng.gen_range(0..acc);
-            let c = &clips[cum.partition_point(|&x| x <= r)];
+            let c = match &s.corpus_share {
+                Some((_, share)) if !favoured.is_empty() && rng.gen::<f64>() < *share => {
+                    favoured[rng.gen_range(0..favoured.len())]
+                }
+                _ => {
+                    let r = rng.gen_range(0..acc);
+                    &clips[cum.partition_point(|&x| x <= r)]
+                }
+            };
             let spacing = rng.gen_range(s.spacing.0..=s.spacing.1);
             exs.push(example(&net.cfg, c, spacing, rng)?);
         }

@@ -46,6 +46,39 @@ pub(crate) fn filled(shape: &[usize], v: f32, dev: &Device) -> Result<Var> {
     Var::from_tensor(&(Tensor::ones(shape, DType::F32, dev)? * v as f64)?)
 }
 
+/// The parameters of `layers` pre-LN blocks (`h{l}.ln1/q/k/v/o/ln2/fc1/fc2`)
+/// and the final `ln_f`: N(0, 0.02) weights, residual projections scaled
+/// by 1/√(2·layers), zero biases, unit norms.
+pub fn insert_blocks(
+    p: &mut BTreeMap<String, Var>,
+    layers: usize,
+    d: usize,
+    ff: usize,
+    dev: &Device,
+) -> Result<()> {
+    let resid = 0.02 / (2.0 * layers as f64).sqrt();
+    for l in 0..layers {
+        let n = |s: &str| format!("h{l}.{s}");
+        p.insert(n("ln1.w"), filled(&[d], 1.0, dev)?);
+        p.insert(n("ln1.b"), filled(&[d], 0.0, dev)?);
+        for w in ["q", "k", "v"] {
+            p.insert(n(&format!("{w}.w")), normal(&[d, d], 0.02, dev)?);
+            p.insert(n(&format!("{w}.b")), filled(&[d], 0.0, dev)?);
+        }
+        p.insert(n("o.w"), normal(&[d, d], resid, dev)?);
+        p.insert(n("o.b"), filled(&[d], 0.0, dev)?);
+        p.insert(n("ln2.w"), filled(&[d], 1.0, dev)?);
+        p.insert(n("ln2.b"), filled(&[d], 0.0, dev)?);
+        p.insert(n("fc1.w"), normal(&[d, ff], 0.02, dev)?);
+        p.insert(n("fc1.b"), filled(&[ff], 0.0, dev)?);
+        p.insert(n("fc2.w"), normal(&[ff, d], resid, dev)?);
+        p.insert(n("fc2.b"), filled(&[d], 0.0, dev)?);
+    }
+    p.insert("ln_f.w".into(), filled(&[d], 1.0, dev)?);
+    p.insert("ln_f.b".into(), filled(&[d], 0.0, dev)?);
+    Ok(())
+}
+
 /// Parameters by name (the names the exporter and checkpoints use).
 pub struct Gpt {
     pub cfg: ModelConfig,
@@ -62,31 +95,12 @@ impl Gpt {
     pub fn new(cfg: ModelConfig, dropout: f32, dev: &Device) -> Result<Gpt> {
         let (d, v, ff) = (cfg.d_model, cfg.vocab_size, cfg.d_ff);
         let mut p = BTreeMap::new();
-        let resid = 0.02 / (2.0 * cfg.n_layers as f64).sqrt();
         p.insert("tok_emb".into(), normal(&[v, d], 0.02, dev)?);
         p.insert("pos_a".into(), normal(&[cfg.table_a(), d], 0.02, dev)?);
         if cfg.table_b() > 0 {
             p.insert("pos_b".into(), normal(&[cfg.table_b(), d], 0.02, dev)?);
         }
-        for l in 0..cfg.n_layers {
-            let n = |s: &str| format!("h{l}.{s}");
-            p.insert(n("ln1.w"), filled(&[d], 1.0, dev)?);
-            p.insert(n("ln1.b"), filled(&[d], 0.0, dev)?);
-            for w in ["q", "k", "v"] {
-                p.insert(n(&format!("{w}.w")), normal(&[d, d], 0.02, dev)?);
-                p.insert(n(&format!("{w}.b")), filled(&[d], 0.0, dev)?);
-            }
-            p.insert(n("o.w"), normal(&[d, d], resid, dev)?);
-            p.insert(n("o.b"), filled(&[d], 0.0, dev)?);
-            p.insert(n("ln2.w"), filled(&[d], 1.0, dev)?);
-            p.insert(n("ln2.b"), filled(&[d], 0.0, dev)?);
-            p.insert(n("fc1.w"), normal(&[d, ff], 0.02, dev)?);
-            p.insert(n("fc1.b"), filled(&[ff], 0.0, dev)?);
-            p.insert(n("fc2.w"), normal(&[ff, d], resid, dev)?);
-            p.insert(n("fc2.b"), filled(&[d], 0.0, dev)?);
-        }
-        p.insert("ln_f.w".into(), filled(&[d], 1.0, dev)?);
-        p.insert("ln_f.b".into(), filled(&[d], 0.0, dev)?);
+        insert_blocks(&mut p, cfg.n_layers, d, ff, dev)?;
         p.insert("head.w".into(), normal(&[d, v], 0.02, dev)?);
         p.insert("head.b".into(), filled(&[v], 0.0, dev)?);
         for (k, values) in &cfg.classes {

@@ -46,58 +46,72 @@ impl MotionJson {
                 ),
             ));
         }
-        let rot: Vec<[f64; 3]> = self.rotations.into_iter().flatten().collect();
-        motion_from_parts(
-            file,
-            &self.name,
-            self.fps,
-            &self.skeleton,
-            rot,
-            self.translation,
-            self.labels,
-        )
+        let parts = MotionParts {
+            name: self.name,
+            fps: self.fps,
+            skeleton: self.skeleton,
+            rotations: self.rotations.into_iter().flatten().collect(),
+            translation: self.translation,
+            labels: self.labels,
+        };
+        parts.into_motion(file)
     }
 }
 
-/// A motion from flat arrays (`rotations`: frames × joints × 3,
+/// A motion as flat arrays (`rotations`: frames × joints × 3,
 /// `translation`: frames × 3) on a named SMPL skeleton.
-pub fn motion_from_parts(
-    file: &str,
-    name: &str,
-    fps: f64,
-    skeleton: &str,
-    rotations: Vec<[f64; 3]>,
-    translation: Vec<[f64; 3]>,
-    labels: Labels,
-) -> Result<Motion, MotionError> {
-    let sk = match skeleton {
-        "smpl24" | "" => Skeleton::smpl24(),
-        "smpl13" => Skeleton::smpl13(),
-        other => {
+pub struct MotionParts {
+    pub name: String,
+    pub fps: f64,
+    /// `smpl24` (also when empty) or `smpl13`.
+    pub skeleton: String,
+    pub rotations: Vec<[f64; 3]>,
+    pub translation: Vec<[f64; 3]>,
+    pub labels: Labels,
+}
+
+impl MotionParts {
+    /// The motion, checked; errors name `file` (also the name when the
+    /// parts have none) and the field.
+    pub fn into_motion(self, file: &str) -> Result<Motion, MotionError> {
+        let MotionParts {
+            name,
+            fps,
+            skeleton,
+            rotations,
+            translation,
+            labels,
+        } = self;
+        let sk =
+            match skeleton.as_str() {
+                "smpl24" | "" => Skeleton::smpl24(),
+                "smpl13" => Skeleton::smpl13(),
+                other => return Err(MotionError::invalid(
+                    file,
+                    "skeleton",
+                    format!(
+                        "'{other}' is not smpl24 or smpl13 (send other skeletons as a BVH file)"
+                    ),
+                )),
+            };
+        let frames = translation.len();
+        if frames == 0 {
+            return Err(MotionError::invalid(file, "translation", "no frames"));
+        }
+        if rotations.len() != frames * sk.len() {
             return Err(MotionError::invalid(
                 file,
-                "skeleton",
-                format!("'{other}' is not smpl24 or smpl13 (send other skeletons as a BVH file)"),
-            ))
+                "rotations",
+                format!(
+                    "{} rotations for {frames} frames × {} joints",
+                    rotations.len(),
+                    sk.len()
+                ),
+            ));
         }
-    };
-    let frames = translation.len();
-    if frames == 0 {
-        return Err(MotionError::invalid(file, "translation", "no frames"));
+        let name = if name.is_empty() { file } else { &name };
+        Motion::new(name, fps, sk, translation, rotations, labels)
     }
-    if rotations.len() != frames * sk.len() {
-        return Err(MotionError::invalid(
-            file,
-            "rotations",
-            format!(
-                "{} rotations for {frames} frames × {} joints",
-                rotations.len(),
-                sk.len()
-            ),
-        ));
-    }
-    let name = if name.is_empty() { file } else { name };
-    Motion::new(name, fps, sk, translation, rotations, labels)
 }
 
 /// Parse a JSON motion file.
