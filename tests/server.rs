@@ -356,6 +356,59 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         st.status,
         tonic_health::pb::health_check_response::ServingStatus::Serving as i32
     );
+    // Reflection (v1) lists the service and serves its proto file, so
+    // grpcurl works without the .proto.
+    {
+        use tonic_reflection::pb::v1::{
+            server_reflection_client::ServerReflectionClient,
+            server_reflection_request::MessageRequest, server_reflection_response::MessageResponse,
+            ServerReflectionRequest,
+        };
+        let channel = tonic::transport::Channel::from_shared(format!("http://{g}"))
+            .unwrap()
+            .connect()
+            .await
+            .unwrap();
+        let mut refl = ServerReflectionClient::new(channel);
+        let reqs = vec![
+            ServerReflectionRequest {
+                host: String::new(),
+                message_request: Some(MessageRequest::ListServices(String::new())),
+            },
+            ServerReflectionRequest {
+                host: String::new(),
+                message_request: Some(MessageRequest::FileContainingSymbol(
+                    "choreo.v1.Choreo".into(),
+                )),
+            },
+        ];
+        let mut answers = refl
+            .server_reflection_info(tokio_stream::iter(reqs))
+            .await
+            .unwrap()
+            .into_inner();
+        let first = answers.message().await.unwrap().unwrap();
+        match first.message_response {
+            Some(MessageResponse::ListServicesResponse(l)) => {
+                let names: Vec<String> = l.service.into_iter().map(|s| s.name).collect();
+                assert!(names.iter().any(|n| n == "choreo.v1.Choreo"), "{names:?}");
+            }
+            other => panic!("list services answered {other:?}"),
+        }
+        let second = answers.message().await.unwrap().unwrap();
+        match second.message_response {
+            Some(MessageResponse::FileDescriptorResponse(f)) => {
+                let all: Vec<u8> = f.file_descriptor_proto.concat();
+                let text = String::from_utf8_lossy(&all);
+                assert!(
+                    text.contains("choreo/v1/choreo.proto"),
+                    "descriptor names its file"
+                );
+                assert!(text.contains("IngestMotion"), "descriptor has the methods");
+            }
+            other => panic!("file containing symbol answered {other:?}"),
+        }
+    }
     let file = aist.join("gBR_sBM_cAll_d04_mBR2_ch08.pkl");
     let bytes = std::fs::read(&file).unwrap();
     let b64 = base64::engine::general_purpose::STANDARD.encode(&bytes);

@@ -200,6 +200,9 @@ impl From<LoadError> for ApiError {
     fn from(e: LoadError) -> Self {
         match e {
             LoadError::Motion(m) => m.into(),
+            // The row is there but its source file moved or changed (it was
+            // ingested from disk without --keep-files).
+            LoadError::Gone(reason) => ApiError::NotFound(reason),
             other => ApiError::Internal(other.to_string()),
         }
     }

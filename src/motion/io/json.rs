@@ -82,18 +82,19 @@ impl MotionParts {
             translation,
             labels,
         } = self;
-        let sk =
-            match skeleton.as_str() {
-                "smpl24" | "" => Skeleton::smpl24(),
-                "smpl13" => Skeleton::smpl13(),
-                other => return Err(MotionError::invalid(
+        let sk = match skeleton.as_str() {
+            "smpl24" | "" => Skeleton::smpl24(),
+            "smpl13" => Skeleton::smpl13(),
+            other => {
+                return Err(MotionError::invalid(
                     file,
                     "skeleton",
                     format!(
                         "'{other}' is not smpl24 or smpl13 (send other skeletons as a BVH file)"
                     ),
-                )),
-            };
+                ))
+            }
+        };
         let frames = translation.len();
         if frames == 0 {
             return Err(MotionError::invalid(file, "translation", "no frames"));
