@@ -898,6 +898,93 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
     assert_eq!(qs, 400, "{qr}");
     assert_eq!(qr["error"]["field"], "motion.id");
 
+    // Interpolate and lowpass on stored AIST++ and Bandai motions: REST and
+    // gRPC give the same output, and the same error for a bad objective.
+    let bandai_src = pb::MotionSource {
+        source: Some(pb::motion_source::Source::Id(bvh_id)),
+    };
+    let pkl_src = pb::MotionSource {
+        source: Some(pb::motion_source::Source::Id(pkl_id)),
+    };
+    let ib = json!({"input": {"id": pkl_id}, "target": {"id": bvh_id}, "steps": 20});
+    let lb = json!({"motion": {"id": bvh_id}, "cutoff": 6});
+    let badb = json!({"input": {"id": pkl_id}, "target": {"id": bvh_id}, "objective": "fft"});
+    let (ir, lr, br) = tokio::task::spawn_blocking(move || {
+        (
+            http(h, "POST", "/v1/interpolate", Some(&ib)),
+            http(h, "POST", "/v1/lowpass", Some(&lb)),
+            http(h, "POST", "/v1/interpolate", Some(&badb)),
+        )
+    })
+    .await
+    .unwrap();
+    assert_eq!(ir.0, 200, "{}", ir.1);
+    assert_eq!(lr.0, 200, "{}", lr.1);
+    assert_eq!(
+        (br.0, br.1["error"]["field"].as_str()),
+        (400, Some("objective"))
+    );
+    let gi = client
+        .interpolate(pb::InterpolateRequest {
+            input: Some(pkl_src.clone()),
+            target: Some(bandai_src.clone()),
+            steps: 20,
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(gi.steps, 20);
+    let rest_loss: Vec<f64> = serde_json::from_value(ir.1["loss"].clone()).unwrap();
+    assert_eq!(gi.loss.len(), rest_loss.len());
+    for (a, b) in gi.loss.iter().zip(&rest_loss) {
+        assert!((a - b).abs() <= 1e-9 * a.abs().max(1.0), "{a} {b}");
+    }
+    let flat = |v: &Value| -> Vec<f64> {
+        v["output"]["rotations"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .flat_map(|f| {
+                f.as_array()
+                    .unwrap()
+                    .iter()
+                    .flat_map(|j| j.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    };
+    let close = |a: &[f64], b: &[f64], what: &str| {
+        assert_eq!(a.len(), b.len(), "{what}");
+        let d = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        assert!(d <= 1e-9, "{what}: REST and gRPC differ by {d}");
+    };
+    close(&gi.output.unwrap().rotations, &flat(&ir.1), "interpolate");
+    let gl = client
+        .lowpass(pb::LowpassRequest {
+            motion: Some(bandai_src.clone()),
+            cutoff: 6,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    close(&gl.output.unwrap().rotations, &flat(&lr.1), "lowpass");
+    let e = client
+        .interpolate(pb::InterpolateRequest {
+            input: Some(pkl_src),
+            target: Some(bandai_src),
+            objective: "fft".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::InvalidArgument);
+    assert!(e.message().contains("objective"), "{}", e.message());
+
     // Delete: the token again; then the motion is gone from get and query.
     let (d_none, d_ok, d_again, get_gone, q_after) = tokio::task::spawn_blocking(move || {
         (
