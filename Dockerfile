@@ -1,7 +1,7 @@
 # choreo: the server image. Build: docker build -t choreo .
 # Run:   docker run -p 8080:8080 -p 50051:50051 -e CHOREO_TOKEN=change-me \
 #          -v choreo-data:/var/lib/choreo choreo
-# The bundled model (models/default) is licensed for non-commercial use
+# The bundled models (models/) are licensed for non-commercial use
 # (Bandai Namco data); see README "Model licence".
 
 # --- build -----------------------------------------------------------------
@@ -26,13 +26,14 @@ RUN apt-get update && apt-get install -y --no-install-recommends ca-certificates
     && useradd --system --uid 10001 --home-dir /var/lib/choreo --shell /usr/sbin/nologin choreo \
     && mkdir -p /var/lib/choreo && chown choreo:choreo /var/lib/choreo
 COPY --from=build /src/target/release/choreo /usr/local/bin/choreo
-COPY models/default /opt/choreo/models/default
+COPY models /opt/choreo/models
 USER 10001:10001
 ENV CHOREO_DATA_DIR=/var/lib/choreo \
     CHOREO_BIND=0.0.0.0 \
     CHOREO_HTTP_PORT=8080 \
     CHOREO_GRPC_PORT=50051 \
-    CHOREO_MODEL=/opt/choreo/models/default
+    CHOREO_MODEL=/opt/choreo/models/default \
+    CHOREO_INBETWEENER=/opt/choreo/models/inbetween
 VOLUME /var/lib/choreo
 EXPOSE 8080 50051
 ENTRYPOINT ["/usr/local/bin/choreo"]
