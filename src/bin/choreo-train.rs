@@ -223,6 +223,10 @@ struct InbetweenArgs {
     /// (e.g. aistpp=0.25).
     #[arg(long)]
     corpus_share: Option<String>,
+    /// Add the left/right mirror of every training clip (off by default:
+    /// the bundled model was trained without; --no-mirror is ignored here).
+    #[arg(long)]
+    mirror: bool,
     /// Held-out spacings evaluated (frames at 60 fps).
     #[arg(long, default_values_t = vec![10, 20, 30], value_delimiter = ',')]
     eval_spacing: Vec<usize>,
@@ -934,7 +938,7 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
         motions,
         a.data.val_fraction,
         cfg.window + 1,
-        !a.data.no_mirror,
+        a.mirror,
     )?;
     let corpus_share = match &a.corpus_share {
         None => None,
