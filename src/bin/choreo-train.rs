@@ -934,12 +934,7 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
         None => InbetweenConfig { condition, ..cfg },
     };
     cfg.validate("--window/--d-model/--heads")?;
-    let (train, val) = ib::prepare(
-        motions,
-        a.data.val_fraction,
-        cfg.window + 1,
-        a.mirror,
-    )?;
+    let (train, val) = ib::prepare(motions, a.data.val_fraction, cfg.window + 1, a.mirror)?;
     let corpus_share = match &a.corpus_share {
         None => None,
         Some(v) => {
