@@ -84,6 +84,26 @@ fn try_http(
     ))
 }
 
+/// `[frames][joints][3]` JSON rotations as gRPC's flat array.
+fn flat_rotations(v: &Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|f| f.as_array().unwrap().iter())
+        .flat_map(|j| j.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
+        .collect()
+}
+
+/// A gRPC motion source: an uploaded file.
+fn upload(name: &str, content: Vec<u8>) -> pb::MotionSource {
+    pb::MotionSource {
+        source: Some(pb::motion_source::Source::File(pb::UploadedFile {
+            name: name.into(),
+            content,
+        })),
+    }
+}
+
 fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
     ServeConfig {
         data_dir: dir.to_path_buf(),
@@ -142,12 +162,7 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
     let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
         .await
         .unwrap();
-    let source = |name: &str, content: Vec<u8>| pb::MotionSource {
-        source: Some(pb::motion_source::Source::File(pb::UploadedFile {
-            name: name.into(),
-            content,
-        })),
-    };
+    let source = upload;
     let resp = client
         .query(pb::QueryRequest {
             motion: Some(source("gJS_sFM_cAll_d02_mJS4_ch09.pkl", bytes.clone())),
@@ -456,17 +471,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     };
     let one = client.generate(greq.clone()).await.unwrap().into_inner();
     let m = one.output.unwrap();
-    let rest_rot: Vec<f64> = out["rotations"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .flat_map(|f| {
-            f.as_array()
-                .unwrap()
-                .iter()
-                .flat_map(|j| j.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
-        })
-        .collect();
+    let rest_rot = flat_rotations(&out["rotations"]);
     // JSON carries decimal text, so the two agree to the last printed digit.
     assert_eq!(m.rotations.len(), rest_rot.len());
     let worst = m
@@ -722,12 +727,7 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
     let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
         .await
         .unwrap();
-    let file = |name: &str, content: Vec<u8>| pb::MotionSource {
-        source: Some(pb::motion_source::Source::File(pb::UploadedFile {
-            name: name.into(),
-            content,
-        })),
-    };
+    let file = upload;
     let denied = client
         .ingest_motion(pb::IngestRequest {
             motion: Some(file("take.bvh", bvh_text.clone().into_bytes())),
@@ -940,20 +940,7 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
     for (a, b) in gi.loss.iter().zip(&rest_loss) {
         assert!((a - b).abs() <= 1e-9 * a.abs().max(1.0), "{a} {b}");
     }
-    let flat = |v: &Value| -> Vec<f64> {
-        v["output"]["rotations"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .flat_map(|f| {
-                f.as_array()
-                    .unwrap()
-                    .iter()
-                    .flat_map(|j| j.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
-                    .collect::<Vec<_>>()
-            })
-            .collect()
-    };
+    let flat = |v: &Value| flat_rotations(&v["output"]["rotations"]);
     let close = |a: &[f64], b: &[f64], what: &str| {
         assert_eq!(a.len(), b.len(), "{what}");
         let d = a
