@@ -137,9 +137,14 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         );
         None
     };
-    let mut state = AppState::new(store, searcher, cfg.workers, model, cfg.token.clone());
-    state.inbetweener = inbetweener;
-    let state = Arc::new(state);
+    let state = Arc::new(AppState::new(
+        store,
+        searcher,
+        cfg.workers,
+        model,
+        inbetweener,
+        cfg.token.clone(),
+    ));
     let max = cfg.max_body_mb.max(1) << 20;
     let http_l = tokio::net::TcpListener::bind((cfg.bind.as_str(), cfg.http_port))
         .await

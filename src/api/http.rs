@@ -15,7 +15,6 @@ use serde_json::json;
 use std::sync::Arc;
 
 pub use crate::motion::io::json::MotionJson;
-use crate::motion::io::json::MotionParts;
 
 /// The REST API's OpenAPI 3.1 description (checked in; a test holds it to
 /// the router).
@@ -41,27 +40,10 @@ fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
     let s = s.ok_or_else(|| ApiError::invalid(field, "missing"))?;
     match (s.motion, s.file, s.id) {
         (None, None, Some(id)) => Ok(MotionInput::Stored(id)),
-        (Some(m), None, None) => {
-            let joints = m.rotations.first().map_or(0, |r| r.len());
-            if m.rotations.iter().any(|r| r.len() != joints) {
-                return Err(ApiError::invalid(
-                    format!("{field}.motion.rotations"),
-                    "frames have different joint counts",
-                ));
-            }
-            let rot: Vec<[f64; 3]> = m.rotations.into_iter().flatten().collect();
-            Ok(MotionInput::Inline(super::motion_from_parts(
-                &format!("{field}.motion"),
-                MotionParts {
-                    name: m.name,
-                    fps: m.fps,
-                    skeleton: m.skeleton,
-                    rotations: rot,
-                    translation: m.translation,
-                    labels: m.labels,
-                },
-            )?))
-        }
+        (Some(m), None, None) => Ok(MotionInput::Inline(super::motion_from_json(
+            &format!("{field}.motion"),
+            m,
+        )?)),
         (None, Some(f), None) => {
             let bytes = base64::engine::general_purpose::STANDARD
                 .decode(f.content_base64.as_bytes())

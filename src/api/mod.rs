@@ -14,11 +14,13 @@ use crate::features::interpolate::{lowpass as lowpass_channels, to_f64, Interpol
 use crate::features::{rows72, smpl24_at_60, Embedding};
 use crate::index::Metric;
 use crate::motion::io::bvh::{write_bvh, BvhWriteOptions};
-use crate::motion::io::json::{write_json, MotionParts};
+use crate::motion::io::json::{write_json, MotionJson, MotionParts};
 use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::{Labels, Motion, MotionError};
 pub use crate::service::ingest::Stored;
-use crate::service::ingest::{ingest_bytes, load_motion, IngestOptions, LoadError};
+use crate::service::ingest::{
+    ingest_bytes, load_motion, load_source, parse_source, IngestOptions, LoadError,
+};
 use crate::service::interpolate::{interpolate_motions, with_channels, InterpolateReport};
 use crate::service::keyframes::{
     reconstruct, Inbetween, KeyframeReport, KeyframeRequest, LearnedModel, Music, Select,
@@ -140,6 +142,15 @@ pub enum MotionInput {
     Stored(i64),
 }
 
+/// An inline JSON motion; errors name `field.<part>`.
+pub fn motion_from_json(field: &str, mut m: MotionJson) -> Result<Motion, ApiError> {
+    if m.name.is_empty() {
+        m.name = "request".into();
+    }
+    let name = m.name.clone();
+    m.into_motion(&name).map_err(|e| prefix(field, e.into()))
+}
+
 /// The motion of inline parts; errors name `field.<part>`.
 pub fn motion_from_parts(field: &str, mut parts: MotionParts) -> Result<Motion, ApiError> {
     if parts.name.is_empty() {
@@ -159,31 +170,6 @@ fn prefix(field: &str, e: ApiError) -> ApiError {
         },
         other => other,
     }
-}
-
-/// The motion of an inline or uploaded input, checked against the duration
-/// limit ([`AppState::resolve`] also reads stored motions).
-pub fn resolve(field: &str, input: MotionInput) -> Result<Motion, ApiError> {
-    let m = match input {
-        MotionInput::Inline(m) => m,
-        MotionInput::File { name, bytes } => {
-            let name = if name.is_empty() {
-                "upload".to_string()
-            } else {
-                name
-            };
-            read_bytes(&name, &bytes, &ReadOptions::default())
-                .map_err(|e| prefix(field, e.into()))?
-                .motion
-        }
-        MotionInput::Stored(id) => {
-            return Err(ApiError::Internal(format!(
-                "{field}: stored motion {id} read without the store"
-            )))
-        }
-    };
-    check_duration(field, &m)?;
-    Ok(m)
 }
 
 fn check_duration(field: &str, m: &Motion) -> Result<(), ApiError> {
@@ -236,6 +222,7 @@ impl AppState {
         searcher: Searcher,
         workers: usize,
         model: Option<Arc<crate::lm::LmSession>>,
+        inbetweener: Option<Arc<crate::lm::inbetween::Inbetweener>>,
         token: Option<String>,
     ) -> AppState {
         AppState {
@@ -245,7 +232,7 @@ impl AppState {
             token: token.filter(|t| !t.is_empty()),
             workers: Arc::new(Semaphore::new(workers.max(1))),
             model,
-            inbetweener: None,
+            inbetweener,
             metrics: Default::default(),
         }
     }
@@ -255,22 +242,33 @@ impl AppState {
         self.searcher.read().expect("searcher lock").clone()
     }
 
-    /// The motion of any input (stored ones read from the store), checked
-    /// against the duration limit.
+    /// The motion of any input (uploads parsed, stored ones read from the
+    /// store), checked against the duration limit.
     pub async fn resolve(&self, field: &str, input: MotionInput) -> Result<Motion, ApiError> {
-        match input {
+        let m = match input {
+            MotionInput::Inline(m) => m,
+            MotionInput::File { name, bytes } => {
+                let name = if name.is_empty() {
+                    "upload".to_string()
+                } else {
+                    name
+                };
+                read_bytes(&name, &bytes, &ReadOptions::default())
+                    .map_err(|e| prefix(field, e.into()))?
+                    .motion
+            }
             MotionInput::Stored(id) => {
-                let (_, m) = load_motion(&self.store, id)
+                load_motion(&self.store, id)
                     .await
                     .map_err(|e| prefix(field, e.into()))?
                     .ok_or_else(|| {
                         ApiError::invalid(format!("{field}.id"), format!("no stored motion {id}"))
-                    })?;
-                check_duration(field, &m)?;
-                Ok(m)
+                    })?
+                    .1
             }
-            other => resolve(field, other),
-        }
+        };
+        check_duration(field, &m)?;
+        Ok(m)
     }
 
     /// A write may go ahead: the server has a token and `presented` (the
@@ -591,15 +589,16 @@ pub async fn get_motion(state: &AppState, id: i64) -> Result<(MotionRow, Motion)
         .ok_or_else(|| ApiError::NotFound(format!("motion {id}")))
 }
 
-/// A stored motion as BVH text: a BVH source is given back byte for byte,
-/// any other is written (SMPL skeleton, ZXY Euler, centimetres).
+/// A stored motion as BVH text: a BVH source is given back byte for byte
+/// (unparsed), any other is written (SMPL skeleton, ZXY Euler, centimetres).
 pub async fn export_bvh(state: &AppState, id: i64) -> Result<String, ApiError> {
-    let (row, m) = get_motion(state, id).await?;
+    let (row, name, bytes) = load_source(&state.store, id)
+        .await?
+        .ok_or_else(|| ApiError::NotFound(format!("motion {id}")))?;
     if row.format == "bvh" {
-        if let Some((_, bytes)) = state.store.motion_file(id).await.map_err(internal)? {
-            return String::from_utf8(bytes).map_err(internal);
-        }
+        return String::from_utf8(bytes).map_err(internal);
     }
+    let m = parse_source(id, name, bytes).await?;
     state
         .heavy("export", move || {
             Ok(write_bvh(&m, &BvhWriteOptions::default())?)

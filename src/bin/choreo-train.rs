@@ -1004,17 +1004,11 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
         "init": a.init.as_ref().map(|p| p.display().to_string()),
         "train_clips": train.len(), "val_clips": val.len(),
         "final_loss_ema": ema});
-    ib::export(
-        &net,
-        info.clone(),
-        Default::default(),
-        training.clone(),
-        &a.out,
-    )?;
+    let mut manifest = ib::export(&net, info, Default::default(), training, &a.out)?;
     let model = Inbetweener::load(&a.out)?;
     let parity = ib::parity(&net, &model, &mut rng)?;
     let rows = ib::evaluate(&model, &train, &val, &a.eval_spacing)?;
-    let mut metrics = std::collections::BTreeMap::new();
+    let metrics = &mut manifest.metrics;
     metrics.insert("parity_max_abs".to_string(), parity);
     for r in &rows {
         metrics.insert(format!("val_slerp_cm2_s{}", r.spacing), r.slerp_cm2);
@@ -1024,7 +1018,7 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
         );
         metrics.insert(format!("val_learned_cm2_s{}", r.spacing), r.learned_cm2);
     }
-    ib::export(&net, info, metrics, training, &a.out)?;
+    ib::write_manifest(&manifest, &a.out)?;
     let report = serde_json::json!({"parity_max_abs": parity, "steps": steps, "seconds": secs,
         "val_clips": val.iter().map(|c| format!("{}/{}", c.corpus, c.name)).collect::<Vec<_>>(),
         "rows": rows});

@@ -34,6 +34,8 @@ pub const POSE_DIM: usize = JOINTS * 6 + 3;
 /// The manifest's `kind`.
 pub const KIND: &str = "inbetweener";
 pub const FORMAT: u32 = 1;
+/// Windows per graph run when rebuilding a clip.
+pub const BATCH: usize = 32;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct InbetweenConfig {
@@ -262,7 +264,7 @@ impl std::fmt::Debug for Inbetweener {
 
 impl Inbetweener {
     /// Loads a model folder (or its manifest), checking the ONNX file's
-    /// hash and that the graph takes `x [1, window, in_dim]`.
+    /// hash and that the graph takes `x [B, window, in_dim]`.
     pub fn load(path: &Path) -> Result<Inbetweener, LmError> {
         let (file, name, m): (_, _, InbetweenManifest) = read_manifest(path)?;
         if m.format != FORMAT || m.kind != KIND {
@@ -279,9 +281,13 @@ impl Inbetweener {
         let (onnx_path, bytes) = read_onnx_checked(&file, &name, &m.onnx, &m.onnx_sha256)?;
         let cfg = &m.config;
         let plan = (|| -> TractResult<Plan> {
-            tract_onnx::onnx()
-                .model_for_read(&mut std::io::Cursor::new(bytes))?
-                .with_input_fact(0, f32::fact([1, cfg.window, cfg.in_dim()]).into())?
+            let model = tract_onnx::onnx().model_for_read(&mut std::io::Cursor::new(bytes))?;
+            let b: TDim = model.sym("B").into();
+            model
+                .with_input_fact(
+                    0,
+                    f32::fact([b, cfg.window.to_dim(), cfg.in_dim().to_dim()]).into(),
+                )?
                 .into_optimized()?
                 .into_runnable()
         })()
@@ -299,19 +305,41 @@ impl Inbetweener {
 
     /// The residual of one window (`window × POSE_DIM`).
     pub fn run_window(&self, x: &[f32]) -> Result<Vec<f32>, LmError> {
+        Ok(self.run_windows(&[x.to_vec()])?.remove(0))
+    }
+
+    /// The residuals of many windows, [`BATCH`] windows to a graph run.
+    pub fn run_windows(&self, xs: &[Vec<f32>]) -> Result<Vec<Vec<f32>>, LmError> {
         let cfg = self.config();
         let rt = |e: TractError| LmError::Runtime(e.to_string());
-        let t = Tensor::from_shape(&[1, cfg.window, cfg.in_dim()], x).map_err(rt)?;
-        let out = self.plan.run(tvec!(t.into_tvalue())).map_err(rt)?;
-        let v = out[0].to_plain_array_view::<f32>().map_err(rt)?;
-        if v.len() != cfg.window * POSE_DIM {
-            return Err(LmError::Runtime(format!(
-                "the graph returned {} numbers, not {} × {POSE_DIM}",
-                v.len(),
-                cfg.window
-            )));
+        let (wi, wo) = (cfg.window * cfg.in_dim(), cfg.window * POSE_DIM);
+        let mut out = Vec::with_capacity(xs.len());
+        for chunk in xs.chunks(BATCH) {
+            if let Some(x) = chunk.iter().find(|x| x.len() != wi) {
+                return Err(LmError::Runtime(format!(
+                    "a window of {} numbers, not {} × {}",
+                    x.len(),
+                    cfg.window,
+                    cfg.in_dim()
+                )));
+            }
+            let flat: Vec<f32> = chunk.concat();
+            let t =
+                Tensor::from_shape(&[chunk.len(), cfg.window, cfg.in_dim()], &flat).map_err(rt)?;
+            let res = self.plan.run(tvec!(t.into_tvalue())).map_err(rt)?;
+            let v = res[0].to_plain_array_view::<f32>().map_err(rt)?;
+            if v.len() != chunk.len() * wo {
+                return Err(LmError::Runtime(format!(
+                    "the graph returned {} numbers, not {} × {} × {POSE_DIM}",
+                    v.len(),
+                    chunk.len(),
+                    cfg.window
+                )));
+            }
+            let all: Vec<f32> = v.iter().copied().collect();
+            out.extend(all.chunks(wo).map(<[f32]>::to_vec));
         }
-        Ok(v.iter().copied().collect())
+        Ok(out)
     }
 
     /// Rebuild the in-betweens of a SMPL-24, 60 fps motion from its
@@ -322,13 +350,13 @@ impl Inbetweener {
         let cfg = self.config();
         let phase = phases(keys, m.frames());
         let cond = cfg.condition_vector(&m.labels);
-        let residuals = window_starts(m.frames(), cfg.window)
+        let inputs: Vec<Vec<f32>> = window_starts(m.frames(), cfg.window)
             .into_iter()
-            .map(|s| {
-                self.run_window(&window_input(cfg, &base_poses, &phase, &cond, s))
-                    .map_err(|e| MotionError::invalid(&m.name, "inbetweener", e.to_string()))
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+            .map(|s| window_input(cfg, &base_poses, &phase, &cond, s))
+            .collect();
+        let residuals = self
+            .run_windows(&inputs)
+            .map_err(|e| MotionError::invalid(&m.name, "inbetweener", e.to_string()))?;
         Ok(apply_residuals(
             &base,
             &base_poses,

@@ -9,8 +9,8 @@ use crate::features::{
     channels72, window, window_starts, Embedding, Extractor, Pca, StftParams, WINDOW,
 };
 use crate::motion::io::{read_bytes, ReadOptions};
-use crate::motion::{Labels, MotionError};
-use crate::store::{NewMotion, NewWindow, Store, StoreError};
+use crate::motion::{Labels, Motion, MotionError};
+use crate::store::{MotionRow, NewMotion, NewWindow, Store, StoreError};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
@@ -81,11 +81,11 @@ pub fn content_hash(bytes: &[u8]) -> String {
 /// Parse, cut and embed one file (blocking, CPU-heavy).
 pub fn prepare(
     file: &str,
-    bytes: &[u8],
+    bytes: Vec<u8>,
     hash: String,
     opts: &IngestOptions,
 ) -> Result<NewMotion, MotionError> {
-    let loaded = read_bytes(file, bytes, &opts.read)?;
+    let loaded = read_bytes(file, &bytes, &opts.read)?;
     let m = &loaded.motion;
     let ch = channels72(m)?;
     let ex = Extractor::new(opts.stft)?;
@@ -120,7 +120,7 @@ pub fn prepare(
             let base = Path::new(file)
                 .file_name()
                 .map_or_else(|| file.to_string(), |n| n.to_string_lossy().into_owned());
-            (base, bytes.to_vec())
+            (base, bytes)
         }),
     })
 }
@@ -215,7 +215,7 @@ pub async fn ingest_bytes(
     }
     let opts2 = opts.clone();
     let name2 = name.to_string();
-    let prepared = tokio::task::spawn_blocking(move || prepare(&name2, &bytes, hash, &opts2))
+    let prepared = tokio::task::spawn_blocking(move || prepare(&name2, bytes, hash, &opts2))
         .await
         .map_err(|e| MotionError::invalid(name, "ingest", format!("worker failed: {e}")));
     match prepared {
@@ -228,44 +228,57 @@ pub async fn ingest_bytes(
     }
 }
 
-/// A stored motion, read back whole: from the bytes the store kept, else
-/// from its source path (which must still hold the same content).
-pub async fn load_motion(
+/// A stored motion's row and source bytes (with the name that gives their
+/// format): the bytes the store kept, else its source path, which must
+/// still hold the same content.
+pub async fn load_source(
     store: &Store,
     id: i64,
-) -> Result<Option<(crate::store::MotionRow, crate::motion::Motion)>, LoadError> {
+) -> Result<Option<(MotionRow, String, Vec<u8>)>, LoadError> {
     let Some(row) = store.motion(id).await? else {
         return Ok(None);
     };
-    let (name, bytes) = match store.motion_file(id).await? {
-        Some(f) => f,
-        None => {
-            let path = row.source_path.clone();
-            let bytes = tokio::task::spawn_blocking(move || std::fs::read(&path))
-                .await
-                .map_err(|e| LoadError::Gone(format!("{}: {e}", row.source_path)))?
-                .map_err(|e| {
-                    LoadError::Gone(format!(
-                        "motion {id}: the store keeps no copy and {} cannot be read ({e})",
-                        row.source_path
-                    ))
-                })?;
-            if content_hash(&bytes) != row.content_hash {
-                return Err(LoadError::Gone(format!(
-                    "motion {id}: the store keeps no copy and {} has changed since it was ingested",
-                    row.source_path
-                )));
-            }
-            (row.source_path.clone(), bytes)
-        }
+    if let Some((name, bytes)) = store.motion_file(id).await? {
+        return Ok(Some((row, name, bytes)));
+    }
+    let path = row.source_path.clone();
+    let bytes = tokio::task::spawn_blocking(move || std::fs::read(&path))
+        .await
+        .map_err(|e| LoadError::Gone(format!("{}: {e}", row.source_path)))?
+        .map_err(|e| {
+            LoadError::Gone(format!(
+                "motion {id}: the store keeps no copy and {} cannot be read ({e})",
+                row.source_path
+            ))
+        })?;
+    if content_hash(&bytes) != row.content_hash {
+        return Err(LoadError::Gone(format!(
+            "motion {id}: the store keeps no copy and {} has changed since it was ingested",
+            row.source_path
+        )));
+    }
+    let name = row.source_path.clone();
+    Ok(Some((row, name, bytes)))
+}
+
+/// A stored motion, read back whole ([`load_source`], parsed), with the
+/// stored labels.
+pub async fn load_motion(store: &Store, id: i64) -> Result<Option<(MotionRow, Motion)>, LoadError> {
+    let Some((row, name, bytes)) = load_source(store, id).await? else {
+        return Ok(None);
     };
-    let mut m = tokio::task::spawn_blocking(move || {
+    let mut m = parse_source(id, name, bytes).await?;
+    m.labels = row.labels.clone();
+    Ok(Some((row, m)))
+}
+
+/// Parse source bytes on the blocking pool.
+pub async fn parse_source(id: i64, name: String, bytes: Vec<u8>) -> Result<Motion, LoadError> {
+    Ok(tokio::task::spawn_blocking(move || {
         read_bytes(&name, &bytes, &ReadOptions::default()).map(|l| l.motion)
     })
     .await
-    .map_err(|e| LoadError::Gone(format!("motion {id}: worker failed: {e}")))??;
-    m.labels = row.labels.clone();
-    Ok(Some((row, m)))
+    .map_err(|e| LoadError::Gone(format!("motion {id}: worker failed: {e}")))??)
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -200,9 +200,16 @@ pub fn export(
         metrics,
         training,
     };
-    let text = serde_json::to_string_pretty(&m)? + "\n";
-    std::fs::write(dir.join(MANIFEST_FILE), text)?;
+    write_manifest(&m, dir)?;
     Ok(m)
+}
+
+/// Writes `dir/manifest.json` (after `metrics` were filled in; the ONNX
+/// file and its hash are unchanged).
+pub fn write_manifest(m: &InbetweenManifest, dir: &Path) -> Result<()> {
+    let text = serde_json::to_string_pretty(m)? + "\n";
+    std::fs::write(dir.join(MANIFEST_FILE), text)?;
+    Ok(())
 }
 
 /// A clip prepared for training: SMPL-24 at 60 fps and its poses.
