@@ -253,7 +253,7 @@ fn run(cli: Cli) -> Result<()> {
             println!(
                 "exported {} ({} parameters) to {}",
                 m.onnx,
-                model.n_params(),
+                model.params.count(),
                 out.display()
             );
             Ok(())
@@ -507,7 +507,7 @@ fn train(a: TrainArgs) -> Result<()> {
             cfg.classes = class_values(&vocab, &a.classify)?;
             if cfg.classes != st.config.classes {
                 let mut fresh = Gpt::new(cfg.clone(), a.dropout, &dev)?;
-                for (k, v) in &m.params {
+                for (k, v) in m.params.iter() {
                     if let Some(dst) = fresh.params.get(k) {
                         if dst.dims() == v.dims() {
                             dst.set(v.as_tensor())?;
@@ -563,7 +563,7 @@ fn train(a: TrainArgs) -> Result<()> {
     let s = state.settings.clone();
     eprintln!(
         "model: {} parameters, d_model {}, {} layers, {} heads, window {} frames ({} tokens), {:?} positions, {:?}; regime {}",
-        model.n_params(),
+        model.params.count(),
         model.cfg.d_model,
         model.cfg.n_layers,
         model.cfg.n_heads,
@@ -664,7 +664,7 @@ fn train(a: TrainArgs) -> Result<()> {
         tokens_total as f64 / secs.max(1e-9),
     );
     m.insert("train_seconds".into(), secs);
-    m.insert("parameters".into(), model.n_params() as f64);
+    m.insert("parameters".into(), model.params.count() as f64);
     for (k, acc, n) in &ev.accuracy {
         m.insert(format!("val_accuracy_{k}"), *acc);
         m.insert(format!("val_windows_{k}"), *n as f64);
@@ -961,7 +961,7 @@ fn inbetween(a: InbetweenArgs) -> Result<()> {
         net.load_from_export(m, &dev)?;
         eprintln!("fine-tuning from {}", m.onnx_path.display());
     }
-    eprintln!("{} parameters", net.n_params());
+    eprintln!("{} parameters", net.params.count());
     let settings = ib::Settings {
         steps: a.steps,
         batch: a.batch,

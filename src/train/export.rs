@@ -111,7 +111,11 @@ impl Builder {
         });
         name.into()
     }
+    /// A constant int64 vector, added once per name (later calls reuse it).
     pub(crate) fn i64(&mut self, name: &str, data: &[i64]) -> String {
+        if self.inits.iter().any(|t| t.name == name) {
+            return name.into();
+        }
         self.inits.push(TensorProto {
             dims: vec![data.len() as i64],
             data_type: DataType::Int64 as i32,
@@ -121,7 +125,11 @@ impl Builder {
         });
         name.into()
     }
+    /// A constant f32 scalar, added once per name (later calls reuse it).
     pub(crate) fn scalar(&mut self, name: &str, v: f32) -> String {
+        if self.inits.iter().any(|t| t.name == name) {
+            return name.into();
+        }
         self.f32(name, &[], vec![v])
     }
 
@@ -156,22 +164,14 @@ impl Builder {
 
     /// GELU, erf form: 0.5 · x · (1 + erf(x / √2)).
     pub(crate) fn gelu(&mut self, x: &str) -> String {
-        let half = self.const_scalar("half", 0.5);
-        let one = self.const_scalar("one", 1.0);
-        let inv_sqrt2 = self.const_scalar("inv_sqrt2", std::f32::consts::FRAC_1_SQRT_2);
+        let half = self.scalar("half", 0.5);
+        let one = self.scalar("one", 1.0);
+        let inv_sqrt2 = self.scalar("inv_sqrt2", std::f32::consts::FRAC_1_SQRT_2);
         let e = self.op("Mul", &[x, &inv_sqrt2], vec![], None);
         let e = self.op("Erf", &[&e], vec![], None);
         let e = self.op("Add", &[&e, &one], vec![], None);
         let hf = self.op("Mul", &[x, &half], vec![], None);
         self.op("Mul", &[&hf, &e], vec![], None)
-    }
-
-    /// A scalar initialiser, added once per name.
-    fn const_scalar(&mut self, name: &str, v: f32) -> String {
-        if !self.inits.iter().any(|t| t.name == name) {
-            self.scalar(name, v);
-        }
-        name.into()
     }
 
     /// Queries, keys and values of a pre-LN block, `[B, H, T, dh]` each.
@@ -184,19 +184,16 @@ impl Builder {
         dh: i64,
     ) -> (String, String, String) {
         let a = self.ln(x, &pre("ln1"), eps);
-        let mut out = ["q", "k", "v"].map(|w| {
+        let [q, k, v] = ["q", "k", "v"].map(|w| {
             let y = self.lin(&a, &pre(w));
             self.heads(&y, h, dh)
         });
-        let v = std::mem::take(&mut out[2]);
-        let k = std::mem::take(&mut out[1]);
-        let q = std::mem::take(&mut out[0]);
         (q, k, v)
     }
 
     /// `[B, T, d]` → `[B, H, T, dh]`.
     pub(crate) fn heads(&mut self, y: &str, h: i64, dh: i64) -> String {
-        let shape = self.const_i64("shape_heads", &[0, 0, h, dh]);
+        let shape = self.i64("shape_heads", &[0, 0, h, dh]);
         let y = self.op("Reshape", &[y, &shape], vec![], None);
         self.op(
             "Transpose",
@@ -204,13 +201,6 @@ impl Builder {
             vec![attr_ints("perm", &[0, 2, 1, 3])],
             None,
         )
-    }
-
-    fn const_i64(&mut self, name: &str, data: &[i64]) -> String {
-        if !self.inits.iter().any(|t| t.name == name) {
-            self.i64(name, data);
-        }
-        name.into()
     }
 
     /// Multi-head attention of `q` over `k`, `v` (all `[B, H, ·, dh]`),
@@ -224,8 +214,8 @@ impl Builder {
         d: i64,
         dh: i64,
     ) -> String {
-        let scale = self.const_scalar("attn_scale", 1.0 / (dh as f32).sqrt());
-        let shape_model = self.const_i64("shape_model", &[0, 0, d]);
+        let scale = self.scalar("attn_scale", 1.0 / (dh as f32).sqrt());
+        let shape_model = self.i64("shape_model", &[0, 0, d]);
         let kt = self.op(
             "Transpose",
             &[k],
@@ -294,7 +284,7 @@ impl Builder {
 pub fn onnx_model(model: &Gpt) -> anyhow::Result<ModelProto> {
     let cfg = &model.cfg;
     let mut g = Builder::default();
-    g.weights(model.tensors())?;
+    g.weights(model.params.tensors())?;
     let (d, h, dh) = (cfg.d_model as i64, cfg.n_heads as i64, cfg.d_head() as i64);
     let eps = cfg.ln_eps as f32;
 

@@ -6,7 +6,7 @@
 //! hash of their names, per corpus, like the language model's data.
 
 use super::export::{value_info, Builder, DataType, ONNX_FILE};
-use super::model::{attention_probs, filled, insert_blocks, layer_norm, linear, normal, AdamW};
+use super::model::{attention_probs, filled, insert_blocks, normal, AdamW, Params};
 use crate::features::smpl24_at_60;
 use crate::keyframes::metrics::mse;
 use crate::lm::inbetween::{
@@ -16,7 +16,7 @@ use crate::lm::inbetween::{
 use crate::lm::manifest::{sha256_hex, DataInfo, MANIFEST_FILE};
 use crate::motion::{Labels, Motion};
 use anyhow::{bail, Result};
-use candle_core::{DType, Device, Tensor, Var};
+use candle_core::{DType, Device, Tensor};
 use prost::Message;
 use rand::rngs::StdRng;
 use rand::Rng;
@@ -27,7 +27,7 @@ use std::path::Path;
 /// The network: `in → +pos → blocks → ln_f → out`.
 pub struct InbetweenNet {
     pub cfg: InbetweenConfig,
-    pub params: BTreeMap<String, Var>,
+    pub params: Params,
 }
 
 impl InbetweenNet {
@@ -41,31 +41,18 @@ impl InbetweenNet {
         // A zero output layer: training starts from SLERP exactly.
         p.insert("out.w".into(), filled(&[d, POSE_DIM], 0.0, dev)?);
         p.insert("out.b".into(), filled(&[POSE_DIM], 0.0, dev)?);
-        Ok(InbetweenNet { cfg, params: p })
-    }
-
-    fn w(&self, name: &str) -> &Tensor {
-        self.params
-            .get(name)
-            .unwrap_or_else(|| panic!("parameter {name} exists"))
-            .as_tensor()
+        Ok(InbetweenNet {
+            cfg,
+            params: Params(p),
+        })
     }
 
     fn lin(&self, x: &Tensor, pre: &str) -> candle_core::Result<Tensor> {
-        linear(x, self.w(&format!("{pre}.w")), self.w(&format!("{pre}.b")))
+        self.params.lin(x, pre)
     }
 
     fn ln(&self, x: &Tensor, pre: &str) -> candle_core::Result<Tensor> {
-        layer_norm(
-            x,
-            self.w(&format!("{pre}.w")),
-            self.w(&format!("{pre}.b")),
-            self.cfg.ln_eps,
-        )
-    }
-
-    pub fn n_params(&self) -> usize {
-        self.params.values().map(|v| v.elem_count()).sum()
+        self.params.ln(x, pre, self.cfg.ln_eps)
     }
 
     /// `x`: `[B, window, in_dim]` → residual `[B, window, POSE_DIM]`.
@@ -73,7 +60,7 @@ impl InbetweenNet {
         let cfg = &self.cfg;
         let (b, t, _) = x.dims3()?;
         let (d, h, dh) = (cfg.d_model, cfg.n_heads, cfg.d_head());
-        let mut x = self.lin(x, "in")?.broadcast_add(self.w("pos_emb"))?;
+        let mut x = self.lin(x, "in")?.broadcast_add(self.params.w("pos_emb"))?;
         let scale = 1.0 / (dh as f64).sqrt();
         for l in 0..cfg.n_layers {
             let n = |s: &str| format!("h{l}.{s}");
@@ -98,13 +85,6 @@ impl InbetweenNet {
         self.lin(&self.ln(&x, "ln_f")?, "out")
     }
 
-    pub fn tensors(&self) -> BTreeMap<String, Tensor> {
-        self.params
-            .iter()
-            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
-            .collect()
-    }
-
     /// Loads the weights of an exported in-betweener (its ONNX
     /// initialisers, by name); every parameter must be there with its shape.
     pub fn load_from_export(&self, model: &Inbetweener, dev: &Device) -> Result<()> {
@@ -115,30 +95,24 @@ impl InbetweenNet {
         let graph = proto
             .graph
             .ok_or_else(|| anyhow::anyhow!("{file}: no graph"))?;
-        let inits: BTreeMap<&str, &tract_onnx::pb::TensorProto> = graph
-            .initializer
-            .iter()
-            .map(|t| (t.name.as_str(), t))
-            .collect();
-        for (name, var) in &self.params {
-            let t = inits
-                .get(name.as_str())
-                .ok_or_else(|| anyhow::anyhow!("{file}: field `{name}`: missing"))?;
-            let dims: Vec<usize> = t.dims.iter().map(|&d| d as usize).collect();
-            if dims != var.dims() || t.raw_data.len() != 4 * var.elem_count() {
-                bail!(
-                    "{file}: field `{name}`: shape {dims:?}, the configuration wants {:?}",
-                    var.dims()
-                );
+        // Float initialisers as tensors; Params::load_tensors checks names
+        // and shapes.
+        let mut t = BTreeMap::new();
+        for init in &graph.initializer {
+            let dims: Vec<usize> = init.dims.iter().map(|&d| d as usize).collect();
+            if init.data_type != DataType::Float as i32
+                || init.raw_data.len() != 4 * dims.iter().product::<usize>()
+            {
+                continue;
             }
-            let data: Vec<f32> = t
+            let data: Vec<f32> = init
                 .raw_data
                 .chunks_exact(4)
                 .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
                 .collect();
-            var.set(&Tensor::from_vec(data, dims, dev)?)?;
+            t.insert(init.name.clone(), Tensor::from_vec(data, dims, dev)?);
         }
-        Ok(())
+        self.params.load_tensors(&t, &file)
     }
 }
 
@@ -147,7 +121,7 @@ impl InbetweenNet {
 pub fn onnx_model(net: &InbetweenNet) -> Result<tract_onnx::pb::ModelProto> {
     let cfg = &net.cfg;
     let mut g = Builder::default();
-    g.weights(net.tensors())?;
+    g.weights(net.params.tensors())?;
     let (d, h, dh) = (cfg.d_model as i64, cfg.n_heads as i64, cfg.d_head() as i64);
     let eps = cfg.ln_eps as f32;
     let x = g.lin("x", "in");

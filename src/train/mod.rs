@@ -77,7 +77,7 @@ pub fn save_checkpoint(
     state: &CheckpointState,
 ) -> Result<()> {
     std::fs::create_dir_all(dir)?;
-    let mut t: HashMap<String, Tensor> = model.tensors().into_iter().collect();
+    let mut t: HashMap<String, Tensor> = model.params.tensors().into_iter().collect();
     for (k, m) in &opt.m {
         t.insert(format!("adam.m.{k}"), m.clone());
     }
@@ -114,8 +114,8 @@ pub fn load_checkpoint(dir: &Path, dev: &Device) -> Result<(CheckpointState, Gpt
         )
     })?;
     let t: BTreeMap<String, Tensor> = t.into_iter().collect();
-    let mut model = Gpt::new(state.config.clone(), state.settings.dropout, dev)?;
-    model.load_tensors(&t, &wp.display().to_string())?;
+    let model = Gpt::new(state.config.clone(), state.settings.dropout, dev)?;
+    model.params.load_tensors(&t, &wp.display().to_string())?;
     let mut opt = AdamW::new(state.settings.lr, state.settings.weight_decay);
     opt.step = state.adam_step;
     for (k, v) in &t {

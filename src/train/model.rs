@@ -79,10 +79,78 @@ pub fn insert_blocks(
     Ok(())
 }
 
-/// Parameters by name (the names the exporter and checkpoints use).
+/// Named parameters (the names the exporter and checkpoints use), with the
+/// lookups both networks make.
+#[derive(Default)]
+pub struct Params(pub BTreeMap<String, Var>);
+
+impl std::ops::Deref for Params {
+    type Target = BTreeMap<String, Var>;
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl Params {
+    pub fn w(&self, name: &str) -> &Tensor {
+        self.0
+            .get(name)
+            .unwrap_or_else(|| panic!("parameter {name} exists"))
+            .as_tensor()
+    }
+
+    /// `x · pre.w + pre.b`.
+    pub fn lin(&self, x: &Tensor, pre: &str) -> Result<Tensor> {
+        linear(x, self.w(&format!("{pre}.w")), self.w(&format!("{pre}.b")))
+    }
+
+    /// LayerNorm with `pre.w`, `pre.b`.
+    pub fn ln(&self, x: &Tensor, pre: &str, eps: f64) -> Result<Tensor> {
+        layer_norm(
+            x,
+            self.w(&format!("{pre}.w")),
+            self.w(&format!("{pre}.b")),
+            eps,
+        )
+    }
+
+    /// How many numbers.
+    pub fn count(&self) -> usize {
+        self.0.values().map(|v| v.elem_count()).sum()
+    }
+
+    /// As named tensors (for checkpoints and export).
+    pub fn tensors(&self) -> BTreeMap<String, Tensor> {
+        self.0
+            .iter()
+            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
+            .collect()
+    }
+
+    /// Replaces every parameter from named tensors, which must all be there
+    /// with their shapes; errors name `file` and the field.
+    pub fn load_tensors(&self, t: &BTreeMap<String, Tensor>, file: &str) -> anyhow::Result<()> {
+        for (name, var) in &self.0 {
+            let src = t
+                .get(name)
+                .ok_or_else(|| anyhow::anyhow!("{file}: field `{name}`: missing"))?;
+            if src.dims() != var.dims() {
+                anyhow::bail!(
+                    "{file}: field `{name}`: shape {:?}, the configuration wants {:?}",
+                    src.dims(),
+                    var.dims()
+                );
+            }
+            var.set(&src.to_dtype(DType::F32)?)?;
+        }
+        Ok(())
+    }
+}
+
+/// The GPT: its configuration, parameters and dropout.
 pub struct Gpt {
     pub cfg: ModelConfig,
-    pub params: BTreeMap<String, Var>,
+    pub params: Params,
     pub dropout: f32,
 }
 
@@ -109,33 +177,9 @@ impl Gpt {
         }
         Ok(Gpt {
             cfg,
-            params: p,
+            params: Params(p),
             dropout,
         })
-    }
-
-    pub fn w(&self, name: &str) -> &Tensor {
-        self.params
-            .get(name)
-            .unwrap_or_else(|| panic!("parameter {name} exists"))
-            .as_tensor()
-    }
-
-    pub fn n_params(&self) -> usize {
-        self.params.values().map(|v| v.elem_count()).sum()
-    }
-
-    fn layer_norm(&self, x: &Tensor, pre: &str) -> Result<Tensor> {
-        layer_norm(
-            x,
-            self.w(&format!("{pre}.w")),
-            self.w(&format!("{pre}.b")),
-            self.cfg.ln_eps,
-        )
-    }
-
-    fn linear(&self, x: &Tensor, pre: &str) -> Result<Tensor> {
-        linear(x, self.w(&format!("{pre}.w")), self.w(&format!("{pre}.b")))
     }
 
     fn drop(&self, x: Tensor, train: bool) -> Result<Tensor> {
@@ -164,7 +208,8 @@ impl Gpt {
         let (b, t) = tokens.dims2()?;
         let (d, h, dh) = (cfg.d_model, cfg.n_heads, cfg.d_head());
         let emb = |table: &str, ids: &Tensor| -> Result<Tensor> {
-            self.w(table)
+            self.params
+                .w(table)
                 .index_select(&ids.flatten_all()?, 0)?
                 .reshape((b, t, d))
         };
@@ -177,9 +222,10 @@ impl Gpt {
         let mut present = Vec::with_capacity(cfg.n_layers);
         for l in 0..cfg.n_layers {
             let n = |s: &str| format!("h{l}.{s}");
-            let a = self.layer_norm(&x, &n("ln1"))?;
+            let a = self.params.ln(&x, &n("ln1"), self.cfg.ln_eps)?;
             let heads = |w: &str| -> Result<Tensor> {
-                self.linear(&a, &n(w))?
+                self.params
+                    .lin(&a, &n(w))?
                     .reshape((b, t, h, dh))?
                     .transpose(1, 2)?
                     .contiguous()
@@ -195,49 +241,22 @@ impl Gpt {
                 .transpose(1, 2)?
                 .contiguous()?
                 .reshape((b, t, d))?;
-            let att = self.drop(self.linear(&att, &n("o"))?, train)?;
+            let att = self.drop(self.params.lin(&att, &n("o"))?, train)?;
             x = (x + att)?;
-            let m = self.layer_norm(&x, &n("ln2"))?;
-            let m = self.linear(&m, &n("fc1"))?.gelu_erf()?;
-            let m = self.drop(self.linear(&m, &n("fc2"))?, train)?;
+            let m = self.params.ln(&x, &n("ln2"), self.cfg.ln_eps)?;
+            let m = self.params.lin(&m, &n("fc1"))?.gelu_erf()?;
+            let m = self.drop(self.params.lin(&m, &n("fc2"))?, train)?;
             x = (x + m)?;
             present.push((k, v));
         }
-        let x = self.layer_norm(&x, "ln_f")?;
-        let logits = self.linear(&x, "head")?;
+        let x = self.params.ln(&x, "ln_f", self.cfg.ln_eps)?;
+        let logits = self.params.lin(&x, "head")?;
         let cls = cfg
             .classes
             .iter()
-            .map(|(k, _)| self.linear(&x, &format!("cls.{k}")))
+            .map(|(k, _)| self.params.lin(&x, &format!("cls.{k}")))
             .collect::<Result<Vec<_>>>()?;
         Ok((logits, cls, present))
-    }
-
-    /// Parameters as named tensors (for checkpoints and export).
-    pub fn tensors(&self) -> BTreeMap<String, Tensor> {
-        self.params
-            .iter()
-            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
-            .collect()
-    }
-
-    /// Replaces parameters from named tensors; every parameter must be
-    /// present with its shape.
-    pub fn load_tensors(&mut self, t: &BTreeMap<String, Tensor>, file: &str) -> anyhow::Result<()> {
-        for (name, var) in &self.params {
-            let src = t.get(name).ok_or_else(|| {
-                anyhow::anyhow!("{file}: field `{name}`: missing from the checkpoint")
-            })?;
-            if src.dims() != var.dims() {
-                anyhow::bail!(
-                    "{file}: field `{name}`: shape {:?}, the configuration wants {:?}",
-                    src.dims(),
-                    var.dims()
-                );
-            }
-            var.set(&src.to_dtype(DType::F32)?)?;
-        }
-        Ok(())
     }
 }
 
