@@ -50,8 +50,8 @@ struct DataArgs {
     /// The data root holding aistpp/, bandai/, cmu/ (and amass/ if you have it).
     #[arg(long, env = "CHOREO_DATA", default_value = "../shared/data")]
     data: PathBuf,
-    /// Corpora to read: aistpp, bandai, cmu, amass, or any folder of motion files.
-    #[arg(long = "corpus", default_values_t = vec!["aistpp".to_string(), "bandai".to_string(), "cmu".to_string()])]
+    /// Corpora to read: aistpp, aistpp-vrm, bandai, cmu, amass, or any folder of motion files.
+    #[arg(long = "corpus", default_values_t = ["aistpp", "aistpp-vrm", "bandai", "cmu"].map(String::from).to_vec())]
     corpora: Vec<String>,
     /// Fraction of each corpus's sequences held out for validation.
     #[arg(long, default_value_t = 0.1)]
@@ -122,8 +122,78 @@ struct TrainArgs {
     lr_sweep: bool,
 }
 
+#[derive(Args, Clone)]
+struct FrameArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// Output folder: checkpoint (resumable) and the final metrics.
+    #[arg(long)]
+    out: PathBuf,
+    /// Continue the run saved in --out.
+    #[arg(long)]
+    resume: bool,
+    /// Largest per-frame change (bins) the change head names.
+    #[arg(long, default_value_t = 24)]
+    radius: usize,
+    #[arg(long, default_value_t = 16)]
+    d_emb: usize,
+    #[arg(long, default_value_t = 192)]
+    d_global: usize,
+    #[arg(long, default_value_t = 4)]
+    global_layers: usize,
+    #[arg(long, default_value_t = 4)]
+    global_heads: usize,
+    #[arg(long, default_value_t = 64)]
+    d_local: usize,
+    #[arg(long, default_value_t = 2)]
+    local_layers: usize,
+    #[arg(long, default_value_t = 4)]
+    local_heads: usize,
+    /// Frames of global context (200 = 10 s at 20 fps).
+    #[arg(long, default_value_t = 64)]
+    frames: usize,
+    #[arg(long, default_value_t = 20.0)]
+    fps: f64,
+    /// Label kinds the conditioning may carry.
+    #[arg(long = "cond", default_values_t = ["genre", "situation", "dancer", "content", "style"].map(String::from).to_vec())]
+    cond: Vec<String>,
+    /// Label kinds to learn class heads for (none = no heads).
+    #[arg(long = "classify")]
+    classify: Vec<String>,
+    #[arg(long, default_value_t = 4000)]
+    steps: usize,
+    #[arg(long, default_value_t = 8)]
+    batch: usize,
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    #[arg(long, default_value_t = 100)]
+    eval_every: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Stop after this many seconds of training, resumed runs included
+    /// (0 = run all steps).
+    #[arg(long, default_value_t = 0.0)]
+    max_seconds: f64,
+}
+
 #[derive(Subcommand)]
 enum Cmd {
+    /// Train the frame-level model (global transformer over frames, local
+    /// decoder over a frame's slots) and print its held-out table beside
+    /// the baselines.
+    Frame(Box<FrameArgs>),
+    /// Held-out bits/frame of a frame-model checkpoint, per corpus, beside
+    /// the unigram, per-slot unigram and previous-frame delta baselines.
+    EvalFrame {
+        #[arg(long)]
+        checkpoint: PathBuf,
+        #[command(flatten)]
+        data: DataArgs,
+        /// Also export the checkpoint (both graphs + manifest) to this
+        /// folder and check it against the trainer.
+        #[arg(long)]
+        export: Option<PathBuf>,
+    },
     /// Read every motion file under DIR and summarise it by corpus.
     Survey {
         #[arg(long, env = "CHOREO_DATA")]
@@ -248,6 +318,21 @@ fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Survey { data, json } => survey(&data, json),
         Cmd::Train(a) => train(*a),
+        Cmd::Frame(a) => frame(*a),
+        Cmd::EvalFrame {
+            checkpoint,
+            data,
+            export,
+        } => {
+            let dev = tr::device();
+            let (st, net, _) = tr::frame::load(&checkpoint, &dev)?;
+            let (vocab, corpus) =
+                load_corpus(&data, Some(&st.vocabulary), &[], false, st.vocabulary.fps)?;
+            if let Some(dir) = export {
+                export_frame(&net, &vocab, &corpus, &st, &dir)?;
+            }
+            print_frame_table(&net, &vocab, &corpus, &st.metrics)
+        }
         Cmd::Export { checkpoint, out } => {
             let (_, model, m) = export_checkpoint(&checkpoint, &out)?;
             println!(
@@ -325,6 +410,9 @@ fn run(cli: Cli) -> Result<()> {
                 vocab.size(),
                 vocab.frame_len(),
             );
+            let fl = vocab.frame_len();
+            let delta =
+                baselines::delta_loss(&corpus.train, &corpus.val, vocab.size(), vocab.bins, fl);
             println!(
                 "{}",
                 serde_json::json!({
@@ -334,13 +422,178 @@ fn run(cli: Cli) -> Result<()> {
                     "val_loss": ev.loss,
                     "val_bits_per_frame": ev.bits_per_frame,
                     "unigram_loss": uni,
+                    "unigram_bits_per_frame": bits_per_frame(uni, fl),
                     "slot_unigram_loss": slot,
+                    "slot_unigram_bits_per_frame": bits_per_frame(slot, fl),
+                    "delta_loss": delta,
+                    "delta_bits_per_frame": bits_per_frame(delta, fl),
                     "accuracy": ev.accuracy.iter().map(|(k, a, n)| serde_json::json!({"kind": k, "accuracy": a, "windows": n})).collect::<Vec<_>>(),
                 })
             );
             Ok(())
         }
     }
+}
+
+fn frame(a: FrameArgs) -> Result<()> {
+    let mut kinds = a.cond.clone();
+    for k in &a.classify {
+        if !kinds.contains(k) {
+            kinds.push(k.clone());
+        }
+    }
+    let known = if a.resume {
+        let (st, _, _): (tr::frame::FrameState, _, _) = tr::load_parts(&a.out, &tr::device())?;
+        Some(st.vocabulary)
+    } else {
+        None
+    };
+    let (vocab, corpus) = load_corpus(&a.data, known.as_ref(), &kinds, false, a.fps)?;
+    eprintln!(
+        "data: {} files from {:?}; {} train / {} validation sequences; {} training tokens (mirrors included)",
+        corpus.info.files,
+        corpus.info.corpora,
+        corpus.info.train_sequences,
+        corpus.info.val_sequences,
+        corpus.info.train_tokens
+    );
+    let run = tr::frame::FrameRun {
+        out: a.out.clone(),
+        resume: a.resume,
+        radius: a.radius,
+        d_emb: a.d_emb,
+        d_global: a.d_global,
+        global_layers: a.global_layers,
+        global_heads: a.global_heads,
+        d_local: a.d_local,
+        local_layers: a.local_layers,
+        local_heads: a.local_heads,
+        frames: a.frames,
+        cond_kinds: a
+            .cond
+            .iter()
+            .filter(|k| vocab.labels.contains_key(*k))
+            .cloned()
+            .collect(),
+        classes: class_values(&vocab, &a.classify)?,
+        settings: RunSettings {
+            steps: a.steps,
+            batch: a.batch,
+            lr: a.lr,
+            min_lr_ratio: 0.1,
+            warmup: (a.steps / 50).max(1),
+            weight_decay: 0.05,
+            dropout: 0.0,
+            eval_every: a.eval_every.max(1),
+            seed: a.seed,
+            keep_label: 0.8,
+            classify_fraction: if a.classify.is_empty() { 0.0 } else { 0.25 },
+            class_weight: 1.0,
+            mask_rate: 0.0,
+            max_seconds: a.max_seconds,
+        },
+    };
+    let st = tr::frame::run(&run, &vocab, &corpus)?;
+    let net = tr::frame::load(&a.out, &tr::device())?.1;
+    export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"))?;
+    print_frame_table(&net, &vocab, &corpus, &st.metrics)
+}
+
+/// Exports a frame model and checks the export against the trainer on the
+/// first held-out sequence.
+fn export_frame(
+    net: &tr::frame::FrameNet,
+    vocab: &choreo::tokenize::vocab::Vocabulary,
+    corpus: &Corpus,
+    st: &tr::frame::FrameState,
+    dir: &Path,
+) -> Result<()> {
+    let training = serde_json::json!({
+        "steps": st.step,
+        "settings": st.settings,
+        "train_seconds": st.train_seconds,
+        "history": st.history,
+    });
+    let m = tr::frame_export::export(
+        net,
+        vocab,
+        st.data.clone(),
+        st.metrics.clone(),
+        training,
+        dir,
+    )?;
+    let seq = corpus
+        .val
+        .first()
+        .or(corpus.train.first())
+        .context("no sequence for the parity check")?;
+    let values = tr::frame::value_frames(&seq.tokens, vocab.frame_len());
+    let labels = vocab.known_labels(&seq.labels);
+    let labels = labels
+        .into_iter()
+        .filter(|(k, _)| net.cfg.cond_kinds.contains(k))
+        .collect();
+    let (worst, scale) = tr::frame_export::parity(net, vocab, dir, &values, &labels)?;
+    eprintln!(
+        "exported {} + {} to {}; parity on {}: max |tract − trainer| = {worst:.2e} (logits up to {scale:.1})",
+        m.global_onnx,
+        m.local_onnx,
+        dir.display(),
+        seq.name
+    );
+    Ok(())
+}
+
+/// Per held-out corpus: the frame model's bits/frame beside the three
+/// baselines (fitted on all training sequences), as JSON rows.
+fn print_frame_table(
+    net: &tr::frame::FrameNet,
+    vocab: &choreo::tokenize::vocab::Vocabulary,
+    corpus: &Corpus,
+    metrics: &BTreeMap<String, f64>,
+) -> Result<()> {
+    let dev = tr::device();
+    let fl = vocab.frame_len();
+    let mut names: Vec<String> = corpus.val.iter().map(|s| s.corpus.clone()).collect();
+    names.sort();
+    names.dedup();
+    names.push("all".into());
+    let mut rows = Vec::new();
+    for name in names {
+        let val: Vec<data::Sequence> = corpus
+            .val
+            .iter()
+            .filter(|s| name == "all" || s.corpus == name)
+            .map(|s| data::Sequence {
+                name: s.name.clone(),
+                corpus: s.corpus.clone(),
+                labels: s.labels.clone(),
+                tokens: s.tokens.clone(),
+                mirrored: None,
+            })
+            .collect();
+        let ev = tr::frame::evaluate(net, vocab, &val, fl, usize::MAX, &dev)?;
+        let (uni, slot) = baselines::unigram_losses(&corpus.train, &val, vocab.size(), fl);
+        let delta = baselines::delta_loss(&corpus.train, &val, vocab.size(), vocab.bins, fl);
+        let row = serde_json::json!({
+            "corpus": name,
+            "val_sequences": val.len(),
+            "val_frames": ev.frames,
+            "frame_model_bits_per_frame": ev.bits_per_frame,
+            "delta_bits_per_frame": bits_per_frame(delta, fl),
+            "slot_unigram_bits_per_frame": bits_per_frame(slot, fl),
+            "unigram_bits_per_frame": bits_per_frame(uni, fl),
+            "ratio_to_delta": ev.bits_per_frame / bits_per_frame(delta, fl),
+            "accuracy": ev.accuracy.iter().map(|(k, a, n)| serde_json::json!({"kind": k, "accuracy": a, "windows": n})).collect::<Vec<_>>(),
+        });
+        eprintln!("{row}");
+        rows.push(row);
+    }
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&serde_json::json!({"rows": rows, "metrics": metrics}))?
+    );
+    Ok(())
 }
 
 /// Loads a checkpoint and exports it to `out`.
@@ -659,6 +912,9 @@ fn train(a: TrainArgs) -> Result<()> {
         "slot_unigram_bits_per_frame".into(),
         bits_per_frame(uni_slot, fl),
     );
+    let delta = baselines::delta_loss(&corpus.train, &corpus.val, vocab.size(), vocab.bins, fl);
+    m.insert("delta_loss".into(), delta);
+    m.insert("delta_bits_per_frame".into(), bits_per_frame(delta, fl));
     m.insert(
         "train_tokens_per_s".into(),
         tokens_total as f64 / secs.max(1e-9),

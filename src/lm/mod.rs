@@ -17,9 +17,12 @@
 //! slot s, class tokens at frame 0 / slot 44. The functions here are the
 //! only place that says so; the trainer and the server both call them.
 
+pub mod frame;
+pub mod frame_runtime;
 pub mod generate;
 pub mod inbetween;
 pub mod manifest;
+pub mod model;
 pub mod runtime;
 
 pub use generate::{classify, forced_frames, prompt_slots, FrameDecoder, Generator, Sampling};

@@ -36,6 +36,71 @@ pub fn unigram_losses(
     (g / n.max(1) as f64, p / n.max(1) as f64)
 }
 
+/// Cross-entropy (nats per frame token) on the validation frame tokens of
+/// the previous-frame delta model: each slot's token is predicted from the
+/// same slot's token one frame earlier through a per-slot distribution of
+/// the change in bin index (add-one smoothed over every possible change),
+/// fitted on the training tokens. A sequence's first frame, and the
+/// separator slot, fall back to the per-slot unigram. The yardstick a
+/// language model must clearly beat to claim it models continuity.
+pub fn delta_loss(
+    train: &[Sequence],
+    val: &[Sequence],
+    vocab_size: usize,
+    bins: usize,
+    fl: usize,
+) -> f64 {
+    let span = 2 * bins - 1;
+    let mut per_slot = vec![vec![1f64; vocab_size]; fl];
+    let mut delta = vec![vec![1f64; span]; fl];
+    let is_value = |t: u32| (t as usize) < bins;
+    for s in train {
+        let n = s.tokens.len() / fl;
+        for f in 0..n {
+            for k in 0..fl {
+                let t = s.tokens[f * fl + k];
+                per_slot[k][t as usize] += 1.0;
+                if f > 0 {
+                    let p = s.tokens[(f - 1) * fl + k];
+                    if is_value(t) && is_value(p) {
+                        delta[k][(t as i64 - p as i64 + bins as i64 - 1) as usize] += 1.0;
+                    }
+                }
+            }
+        }
+    }
+    let sz: Vec<f64> = per_slot.iter().map(|r| r.iter().sum()).collect();
+    // The changes reachable from bin `p` (all of them), so each slot's
+    // prediction is a proper distribution over its values.
+    let reach: Vec<Vec<f64>> = delta
+        .iter()
+        .map(|d| {
+            (0..bins)
+                .map(|p| (0..bins).map(|b| d[b + bins - 1 - p]).sum())
+                .collect()
+        })
+        .collect();
+    let (mut loss, mut count) = (0f64, 0usize);
+    for s in val {
+        let n = s.tokens.len() / fl;
+        for f in 0..n {
+            for k in 0..fl {
+                let t = s.tokens[f * fl + k];
+                let p = (f > 0).then(|| s.tokens[(f - 1) * fl + k]);
+                loss -= match p {
+                    Some(p) if is_value(t) && is_value(p) => {
+                        let d = delta[k][(t as i64 - p as i64 + bins as i64 - 1) as usize];
+                        (d / reach[k][p as usize]).ln()
+                    }
+                    _ => (per_slot[k][t as usize] / sz[k]).ln(),
+                };
+                count += 1;
+            }
+        }
+    }
+    loss / count.max(1) as f64
+}
+
 /// Window features for LDA: per value slot, the mean, standard deviation
 /// and mean absolute frame-to-frame change of the bin index (scaled to
 /// [0, 1]).

@@ -45,6 +45,7 @@ pub fn corpus_dirs(root: &Path, names: &[String]) -> Result<Vec<(String, PathBuf
     for n in names {
         let p = match n.as_str() {
             "aistpp" => root.join("aistpp/motions"),
+            "aistpp-vrm" => root.join("aistpp-vrm/motions"),
             "bandai" => root.join("bandai"),
             "cmu" => root.join("cmu"),
             "amass" => root.join("amass"),
@@ -60,7 +61,7 @@ pub fn corpus_dirs(root: &Path, names: &[String]) -> Result<Vec<(String, PathBuf
 
 fn licence(corpus: &str) -> &'static str {
     match corpus {
-        "aistpp" => "AIST++ annotations: Google LLC, CC BY 4.0",
+        "aistpp" | "aistpp-vrm" => "AIST++ annotations: Google LLC, CC BY 4.0",
         "bandai" => "Bandai Namco Research motion dataset: CC BY-NC 4.0",
         "cmu" => "CMU Graphics Lab motion capture: free for any use",
         "amass" => "AMASS: research licence of MPI (see amass.is.tue.mpg.de)",

@@ -5,6 +5,8 @@
 pub mod baselines;
 pub mod data;
 pub mod export;
+pub mod frame;
+pub mod frame_export;
 pub mod inbetween;
 pub mod model;
 pub mod parity;
@@ -76,8 +78,19 @@ pub fn save_checkpoint(
     opt: &AdamW,
     state: &CheckpointState,
 ) -> Result<()> {
+    save_parts(dir, &model.params, opt, state)
+}
+
+/// Writes parameters, optimiser moments and a JSON state as one checkpoint
+/// folder (each file written beside, then renamed).
+pub fn save_parts(
+    dir: &Path,
+    params: &model::Params,
+    opt: &AdamW,
+    state: &impl Serialize,
+) -> Result<()> {
     std::fs::create_dir_all(dir)?;
-    let mut t: HashMap<String, Tensor> = model.params.tensors().into_iter().collect();
+    let mut t: HashMap<String, Tensor> = params.tensors().into_iter().collect();
     for (k, m) in &opt.m {
         t.insert(format!("adam.m.{k}"), m.clone());
     }
@@ -97,15 +110,29 @@ pub fn save_checkpoint(
 /// Loads a checkpoint folder: the state, the model and the optimiser.
 /// Missing or corrupt files are errors naming them.
 pub fn load_checkpoint(dir: &Path, dev: &Device) -> Result<(CheckpointState, Gpt, AdamW)> {
+    let (state, t, file): (CheckpointState, _, _) = load_parts(dir, dev)?;
+    state
+        .config
+        .validate(&dir.join(CKPT_JSON).display().to_string())
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let model = Gpt::new(state.config.clone(), state.settings.dropout, dev)?;
+    model.params.load_tensors(&t, &file)?;
+    let opt = restore_adam(&t, &state.settings, state.adam_step);
+    Ok((state, model, opt))
+}
+
+/// Reads a checkpoint folder's JSON state and tensors (weights and
+/// optimiser moments); returns them with the weights file's name for
+/// errors. Missing or corrupt files are errors naming them.
+pub fn load_parts<S: serde::de::DeserializeOwned>(
+    dir: &Path,
+    dev: &Device,
+) -> Result<(S, BTreeMap<String, Tensor>, String)> {
     let jp = dir.join(CKPT_JSON);
     let text =
         std::fs::read_to_string(&jp).with_context(|| format!("{}: cannot read", jp.display()))?;
-    let state: CheckpointState = serde_json::from_str(&text)
+    let state: S = serde_json::from_str(&text)
         .map_err(|e| anyhow::anyhow!("{}: field `json`: {e}", jp.display()))?;
-    state
-        .config
-        .validate(&jp.display().to_string())
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
     let wp = dir.join(CKPT_WEIGHTS);
     let t = candle_core::safetensors::load(&wp, dev).map_err(|e| {
         anyhow::anyhow!(
@@ -113,19 +140,21 @@ pub fn load_checkpoint(dir: &Path, dev: &Device) -> Result<(CheckpointState, Gpt
             wp.display()
         )
     })?;
-    let t: BTreeMap<String, Tensor> = t.into_iter().collect();
-    let model = Gpt::new(state.config.clone(), state.settings.dropout, dev)?;
-    model.params.load_tensors(&t, &wp.display().to_string())?;
-    let mut opt = AdamW::new(state.settings.lr, state.settings.weight_decay);
-    opt.step = state.adam_step;
-    for (k, v) in &t {
+    Ok((state, t.into_iter().collect(), wp.display().to_string()))
+}
+
+/// The optimiser saved beside the weights (`adam.m.*`, `adam.v.*`).
+pub fn restore_adam(t: &BTreeMap<String, Tensor>, s: &RunSettings, step: usize) -> AdamW {
+    let mut opt = AdamW::new(s.lr, s.weight_decay);
+    opt.step = step;
+    for (k, v) in t {
         if let Some(n) = k.strip_prefix("adam.m.") {
             opt.m.insert(n.to_string(), v.clone());
         } else if let Some(n) = k.strip_prefix("adam.v.") {
             opt.v.insert(n.to_string(), v.clone());
         }
     }
-    Ok((state, model, opt))
+    opt
 }
 
 /// Mean losses of a batch: language model (nats per target token) and

@@ -56,9 +56,25 @@ pub fn insert_blocks(
     ff: usize,
     dev: &Device,
 ) -> Result<()> {
+    insert_stack(p, "h", layers, d, ff, dev)?;
+    p.insert("ln_f.w".into(), filled(&[d], 1.0, dev)?);
+    p.insert("ln_f.b".into(), filled(&[d], 0.0, dev)?);
+    Ok(())
+}
+
+/// `layers` pre-LN blocks named `{pre}{l}.ln1/q/k/v/o/ln2/fc1/fc2`, with
+/// the initialisation of [`insert_blocks`] (no final norm).
+pub fn insert_stack(
+    p: &mut BTreeMap<String, Var>,
+    pre: &str,
+    layers: usize,
+    d: usize,
+    ff: usize,
+    dev: &Device,
+) -> Result<()> {
     let resid = 0.02 / (2.0 * layers as f64).sqrt();
     for l in 0..layers {
-        let n = |s: &str| format!("h{l}.{s}");
+        let n = |s: &str| format!("{pre}{l}.{s}");
         p.insert(n("ln1.w"), filled(&[d], 1.0, dev)?);
         p.insert(n("ln1.b"), filled(&[d], 0.0, dev)?);
         for w in ["q", "k", "v"] {
@@ -74,8 +90,6 @@ pub fn insert_blocks(
         p.insert(n("fc2.w"), normal(&[ff, d], resid, dev)?);
         p.insert(n("fc2.b"), filled(&[d], 0.0, dev)?);
     }
-    p.insert("ln_f.w".into(), filled(&[d], 1.0, dev)?);
-    p.insert("ln_f.b".into(), filled(&[d], 0.0, dev)?);
     Ok(())
 }
 
@@ -112,6 +126,39 @@ impl Params {
             self.w(&format!("{pre}.b")),
             eps,
         )
+    }
+
+    /// One pre-LN block `pre.{ln1,q,k,v,o,ln2,fc1,fc2}` on `x: [B, T, d]`
+    /// with `heads` heads and an additive attention `bias` (broadcastable
+    /// to `[B, H, T, T]`), no dropout.
+    pub fn block(
+        &self,
+        x: &Tensor,
+        pre: &str,
+        heads: usize,
+        eps: f64,
+        bias: Option<&Tensor>,
+    ) -> Result<Tensor> {
+        let (b, t, d) = x.dims3()?;
+        let dh = d / heads;
+        let n = |s: &str| format!("{pre}.{s}");
+        let a = self.ln(x, &n("ln1"), eps)?;
+        let split = |w: &str| -> Result<Tensor> {
+            self.lin(&a, &n(w))?
+                .reshape((b, t, heads, dh))?
+                .transpose(1, 2)?
+                .contiguous()
+        };
+        let (q, k, v) = (split("q")?, split("k")?, split("v")?);
+        let att = attention_probs(&q, &k, 1.0 / (dh as f64).sqrt(), bias)?
+            .matmul(&v)?
+            .transpose(1, 2)?
+            .contiguous()?
+            .reshape((b, t, d))?;
+        let x = (x + self.lin(&att, &n("o"))?)?;
+        let m = self.ln(&x, &n("ln2"), eps)?;
+        let m = self.lin(&m, &n("fc1"))?.gelu_erf()?;
+        x + self.lin(&m, &n("fc2"))?
     }
 
     /// How many numbers.
@@ -326,7 +373,9 @@ impl AdamW {
             };
             let upd = ((&m / c1)? / ((&v / c2)?.sqrt()? + self.eps)?)?;
             let w = var.as_tensor();
-            let decay = var.rank() == 2 && !name.starts_with("pos_") && name != "tok_emb";
+            // Weight matrices only: embedding and position tables (names
+            // without `.w`) are not decayed.
+            let decay = var.rank() == 2 && name.ends_with(".w");
             let mut next = (w - (upd * self.lr)?)?;
             if decay && self.weight_decay > 0.0 {
                 next = (next - (w * (self.lr * self.weight_decay))?)?;

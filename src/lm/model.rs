@@ -1,0 +1,182 @@
+//! One handle over both kinds of motion model, chosen by the manifest's
+//! `kind`: the thesis's flat GPT (`motion-lm`, 43 steps a frame) and the
+//! frame model (`motion-frame-lm`, one global step and a small local
+//! decoder a frame). Generation, streaming, duet and classification go
+//! through it, so callers never ask which kind they hold.
+
+use super::frame::FRAME_KIND;
+use super::frame_runtime::{FrameGenerator, FrameSession};
+use super::generate::{classify as flat_classify, Generator, Sampling};
+use super::manifest::read_manifest;
+use super::{LmError, LmSession};
+use crate::motion::Labels;
+use crate::tokenize::vocab::Vocabulary;
+use std::path::Path;
+use std::sync::Arc;
+
+/// A loaded motion model of either kind: immutable, shared by requests.
+#[derive(Clone)]
+pub enum MotionModel {
+    Flat(Arc<LmSession>),
+    Frame(Arc<FrameSession>),
+}
+
+/// Class probabilities per kind, each sorted by probability.
+pub type ClassTable = Vec<(String, Vec<(String, f64)>)>;
+
+impl MotionModel {
+    /// Loads a model folder (or its manifest) of either kind.
+    pub fn load(path: &Path) -> Result<MotionModel, LmError> {
+        let (_, name, v): (_, String, serde_json::Value) = read_manifest(path)?;
+        match v.get("kind").and_then(|k| k.as_str()) {
+            Some("motion-lm") => Ok(MotionModel::Flat(Arc::new(LmSession::load(path)?))),
+            Some(k) if k == FRAME_KIND => {
+                Ok(MotionModel::Frame(Arc::new(FrameSession::load(path)?)))
+            }
+            other => Err(LmError::invalid(
+                name,
+                "kind",
+                format!("{other:?}: this build loads \"motion-lm\" and \"{FRAME_KIND}\" models"),
+            )),
+        }
+    }
+
+    /// `motion-lm` or `motion-frame-lm`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            MotionModel::Flat(_) => "motion-lm",
+            MotionModel::Frame(_) => FRAME_KIND,
+        }
+    }
+
+    pub fn vocabulary(&self) -> &Vocabulary {
+        match self {
+            MotionModel::Flat(s) => &s.manifest.vocabulary,
+            MotionModel::Frame(s) => &s.manifest.vocabulary,
+        }
+    }
+
+    /// Frames of context the model sees.
+    pub fn context_frames(&self) -> usize {
+        match self {
+            MotionModel::Flat(s) => s.config().max_frames,
+            MotionModel::Frame(s) => s.config().max_frames,
+        }
+    }
+
+    /// Label kinds the model is conditioned on.
+    pub fn cond_kinds(&self) -> &[String] {
+        match self {
+            MotionModel::Flat(s) => &s.config().cond_kinds,
+            MotionModel::Frame(s) => &s.config().cond_kinds,
+        }
+    }
+
+    /// A generation from these labels, continuing `seed_tokens` (whole
+    /// frames).
+    pub fn generator(
+        &self,
+        labels: &Labels,
+        seed_tokens: &[u32],
+        sampling: Sampling,
+    ) -> Result<MotionGenerator, LmError> {
+        Ok(match self {
+            MotionModel::Flat(s) => {
+                MotionGenerator::Flat(Generator::new(s.clone(), labels, seed_tokens, sampling)?)
+            }
+            MotionModel::Frame(s) => MotionGenerator::Frame(FrameGenerator::new(
+                s.clone(),
+                labels,
+                seed_tokens,
+                sampling,
+            )?),
+        })
+    }
+
+    /// Class probabilities of a motion's frame tokens (whole frames of the
+    /// vocabulary's `frame_len`), averaged over at most `max_windows`
+    /// windows of the model's context.
+    pub fn classify(
+        &self,
+        frame_tokens: &[u32],
+        max_windows: usize,
+    ) -> Result<ClassTable, LmError> {
+        match self {
+            MotionModel::Flat(s) => flat_classify(s, frame_tokens, max_windows),
+            MotionModel::Frame(s) => {
+                let c = s.config();
+                if c.classes.is_empty() {
+                    return Err(LmError::invalid(
+                        "model",
+                        "classes",
+                        "this model has no class heads",
+                    ));
+                }
+                let fl = c.slots + 1;
+                let values: Vec<u32> = frame_tokens
+                    .chunks_exact(fl)
+                    .flat_map(|f| f[..c.slots].iter().copied())
+                    .collect();
+                let frames = values.len() / c.slots;
+                if frames == 0 {
+                    return Err(LmError::invalid(
+                        "request",
+                        "motion",
+                        "no whole frame to classify",
+                    ));
+                }
+                let w = c.max_frames.min(frames);
+                let n = max_windows.max(1).min(frames.div_ceil(w));
+                let starts: Vec<usize> =
+                    (0..n).map(|i| i * (frames - w) / (n - 1).max(1)).collect();
+                let mut acc: Vec<Vec<f64>> =
+                    c.classes.iter().map(|(_, v)| vec![0.0; v.len()]).collect();
+                for &s0 in &starts {
+                    let logits = s.classify(&values[s0 * c.slots..(s0 + w) * c.slots])?;
+                    for (a, l) in acc.iter_mut().zip(logits) {
+                        let mx = l.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+                        let e: Vec<f64> = l.iter().map(|&x| ((x - mx) as f64).exp()).collect();
+                        let z: f64 = e.iter().sum();
+                        for (x, p) in a.iter_mut().zip(&e) {
+                            *x += p / z / starts.len() as f64;
+                        }
+                    }
+                }
+                Ok(c.classes
+                    .iter()
+                    .zip(acc)
+                    .map(|((k, values), a)| {
+                        let mut v: Vec<(String, f64)> = values.iter().cloned().zip(a).collect();
+                        v.sort_by(|x, y| y.1.total_cmp(&x.1));
+                        (k.clone(), v)
+                    })
+                    .collect())
+            }
+        }
+    }
+}
+
+/// A running generation of either kind; both give one frame per call.
+pub enum MotionGenerator {
+    Flat(Generator),
+    Frame(FrameGenerator),
+}
+
+impl MotionGenerator {
+    /// The next frame's tokens (separator last); `forced[s]` fixes slot
+    /// `s` (a joint prompt).
+    pub fn next_frame(&mut self, forced: &[Option<u32>]) -> Result<Vec<u32>, LmError> {
+        match self {
+            MotionGenerator::Flat(g) => g.next_frame(forced),
+            MotionGenerator::Frame(g) => g.next_frame(forced),
+        }
+    }
+
+    /// Frames produced so far.
+    pub fn produced(&self) -> usize {
+        match self {
+            MotionGenerator::Flat(g) => g.produced,
+            MotionGenerator::Frame(g) => g.produced,
+        }
+    }
+}

@@ -1,0 +1,731 @@
+//! The frame-level motion model in candle (see `lm::frame` for the design):
+//! its parameters, forward pass, batches drawn from the shared corpus,
+//! losses in bits per frame, the training step and held-out evaluation.
+
+use super::data::{Corpus, Sequence};
+use super::model::{filled, insert_stack, normal, AdamW, Params};
+use super::RunSettings;
+use crate::lm::frame::{frame_changes, local_context, FrameConfig};
+use crate::motion::Labels;
+use crate::tokenize::vocab::Vocabulary;
+use anyhow::{bail, Result};
+use candle_core::{Device, Tensor, D};
+use rand::rngs::StdRng;
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// The network: its configuration and named parameters.
+pub struct FrameNet {
+    pub cfg: FrameConfig,
+    pub params: Params,
+}
+
+/// A causal additive bias `[1, 1, n, n]`.
+fn causal(n: usize, dev: &Device) -> candle_core::Result<Tensor> {
+    let v: Vec<f32> = (0..n * n)
+        .map(|i| if i % n > i / n { -1e9 } else { 0.0 })
+        .collect();
+    Tensor::from_vec(v, (1, 1, n, n), dev)
+}
+
+impl FrameNet {
+    pub fn new(cfg: FrameConfig, dev: &Device) -> candle_core::Result<FrameNet> {
+        let (dg, dl, de) = (cfg.d_global, cfg.d_local, cfg.d_emb);
+        let mut p = BTreeMap::new();
+        p.insert("g_val".into(), normal(&[cfg.bins, de], 0.02, dev)?);
+        p.insert("g_chg".into(), normal(&[cfg.change_rows(), de], 0.02, dev)?);
+        p.insert("g_in.w".into(), normal(&[cfg.slots * de, dg], 0.02, dev)?);
+        p.insert("g_in.b".into(), filled(&[dg], 0.0, dev)?);
+        p.insert("g_cond".into(), normal(&[cfg.vocab_size, dg], 0.02, dev)?);
+        p.insert(
+            "g_pos".into(),
+            normal(&[cfg.max_frames + 1, dg], 0.02, dev)?,
+        );
+        insert_stack(&mut p, "g", cfg.global_layers, dg, 4 * dg, dev)?;
+        p.insert("g_ln.w".into(), filled(&[dg], 1.0, dev)?);
+        p.insert("g_ln.b".into(), filled(&[dg], 0.0, dev)?);
+        p.insert("l_ctx.w".into(), normal(&[dg, dl], 0.02, dev)?);
+        p.insert("l_ctx.b".into(), filled(&[dl], 0.0, dev)?);
+        p.insert("l_in".into(), normal(&[cfg.change_rows(), dl], 0.02, dev)?);
+        p.insert("l_vel".into(), normal(&[cfg.change_rows(), dl], 0.02, dev)?);
+        p.insert("l_prev".into(), normal(&[cfg.bins + 1, dl], 0.02, dev)?);
+        p.insert("l_pos".into(), normal(&[cfg.slots, dl], 0.02, dev)?);
+        insert_stack(&mut p, "l", cfg.local_layers, dl, 4 * dl, dev)?;
+        p.insert("l_ln.w".into(), filled(&[dl], 1.0, dev)?);
+        p.insert("l_ln.b".into(), filled(&[dl], 0.0, dev)?);
+        p.insert("rel.w".into(), normal(&[dl, cfg.rel_classes()], 0.02, dev)?);
+        p.insert("rel.b".into(), filled(&[cfg.rel_classes()], 0.0, dev)?);
+        p.insert("abs.w".into(), normal(&[dl, cfg.bins], 0.02, dev)?);
+        p.insert("abs.b".into(), filled(&[cfg.bins], 0.0, dev)?);
+        for (k, values) in &cfg.classes {
+            p.insert(
+                format!("cls.{k}.w"),
+                normal(&[dg, values.len()], 0.02, dev)?,
+            );
+            p.insert(format!("cls.{k}.b"), filled(&[values.len()], 0.0, dev)?);
+        }
+        Ok(FrameNet {
+            cfg,
+            params: Params(p),
+        })
+    }
+
+    fn emb(&self, table: &str, ids: &Tensor) -> candle_core::Result<Tensor> {
+        let mut shape = ids.dims().to_vec();
+        let w = self.params.w(table);
+        shape.push(w.dim(1)?);
+        w.index_select(&ids.flatten_all()?, 0)?.reshape(shape)
+    }
+
+    /// Global states `[B, T + 1, d_global]` (after the final norm): position
+    /// 0 is the conditioning, position `t + 1` frame `t`. `val`, `chg`:
+    /// `[B, T, slots]` u32; `cond`: `[B, vocab]` f32 multi-hot.
+    pub fn global(&self, val: &Tensor, chg: &Tensor, cond: &Tensor) -> candle_core::Result<Tensor> {
+        let c = &self.cfg;
+        let (b, t, s) = val.dims3()?;
+        let e =
+            (self.emb("g_val", val)? + self.emb("g_chg", chg)?)?.reshape((b, t, s * c.d_emb))?;
+        let frames = self.params.lin(&e, "g_in")?;
+        let cond = cond.matmul(self.params.w("g_cond"))?.unsqueeze(1)?;
+        let x = Tensor::cat(&[&cond, &frames], 1)?;
+        let pos = self.params.w("g_pos").narrow(0, 0, t + 1)?;
+        let mut x = x.broadcast_add(&pos)?;
+        let bias = causal(t + 1, val.device())?;
+        for l in 0..c.global_layers {
+            x = self
+                .params
+                .block(&x, &format!("g{l}"), c.global_heads, c.ln_eps, Some(&bias))?;
+        }
+        self.params.ln(&x, "g_ln", c.ln_eps)
+    }
+
+    /// Change and absolute logits `[N, slots, rel]`, `[N, slots, bins]` for
+    /// `N` frames, each decoded from its global state `ctx: [N, d_global]`;
+    /// `inp`, `vel`, `prev`: `[N, slots]` u32.
+    pub fn local(
+        &self,
+        ctx: &Tensor,
+        inp: &Tensor,
+        vel: &Tensor,
+        prev: &Tensor,
+    ) -> candle_core::Result<(Tensor, Tensor)> {
+        let c = &self.cfg;
+        let s = inp.dim(1)?;
+        let ctx = self.params.lin(ctx, "l_ctx")?.unsqueeze(1)?;
+        let x =
+            ((self.emb("l_in", inp)? + self.emb("l_vel", vel)?)? + self.emb("l_prev", prev)?)?;
+        let pos = self.params.w("l_pos").narrow(0, 0, s)?;
+        let mut x = x.broadcast_add(&ctx)?.broadcast_add(&pos)?;
+        let bias = causal(s, inp.device())?;
+        for l in 0..c.local_layers {
+            x = self
+                .params
+                .block(&x, &format!("l{l}"), c.local_heads, c.ln_eps, Some(&bias))?;
+        }
+        let x = self.params.ln(&x, "l_ln", c.ln_eps)?;
+        Ok((self.params.lin(&x, "rel")?, self.params.lin(&x, "abs")?))
+    }
+
+    /// Class logits per kind `[B, classes]` from the frames' global states
+    /// averaged under `frame_w: [B, T]`.
+    pub fn classify(&self, h: &Tensor, frame_w: &Tensor) -> candle_core::Result<Vec<Tensor>> {
+        let t = frame_w.dim(1)?;
+        let hs = h.narrow(1, 1, t)?;
+        let w = frame_w.unsqueeze(2)?;
+        let pooled = hs
+            .broadcast_mul(&w)?
+            .sum(1)?
+            .broadcast_div(&w.sum(1)?.clamp(1e-6, f64::MAX)?)?;
+        self.cfg
+            .classes
+            .iter()
+            .map(|(k, _)| self.params.lin(&pooled, &format!("cls.{k}")))
+            .collect()
+    }
+}
+
+/// One window for training or evaluation.
+pub struct FrameExample {
+    /// `T × slots` value tokens.
+    pub frames: Vec<u32>,
+    /// The window's previous two frames (most recent first), where the
+    /// sequence has them.
+    pub hist: Vec<Vec<u32>>,
+    /// Conditioning token ids (`<bos>` and kept labels).
+    pub cond: Vec<u32>,
+    /// Class targets: (kind index, class index).
+    pub classes: Vec<(usize, usize)>,
+}
+
+/// Value slots of whole frames (the separator dropped).
+pub fn value_frames(tokens: &[u32], fl: usize) -> Vec<u32> {
+    tokens
+        .chunks_exact(fl)
+        .flat_map(|f| f[..fl - 1].iter().copied())
+        .collect()
+}
+
+/// The window `[start, start + len)` of a sequence's value frames, with
+/// its history, conditioned on `labels` (each kept with `keep_label`) or,
+/// for classification, on `<bos>` alone with the class targets.
+#[allow(clippy::too_many_arguments)]
+pub fn example(
+    cfg: &FrameConfig,
+    vocab: &Vocabulary,
+    values: &[u32],
+    start: usize,
+    len: usize,
+    labels: &Labels,
+    as_classifier: bool,
+    keep_label: f64,
+    rng: &mut StdRng,
+) -> FrameExample {
+    let s = cfg.slots;
+    let frame = |f: usize| values[f * s..(f + 1) * s].to_vec();
+    let hist = (1..=2)
+        .filter(|&k| start >= k)
+        .map(|k| frame(start - k))
+        .collect();
+    let mut cond = vec![vocab.bos()];
+    let mut classes = Vec::new();
+    if as_classifier {
+        for (ci, (k, vs)) in cfg.classes.iter().enumerate() {
+            if let Some(idx) = labels.get(k).and_then(|v| vs.iter().position(|x| x == v)) {
+                classes.push((ci, idx));
+            }
+        }
+    } else {
+        for k in &cfg.cond_kinds {
+            if let Some(v) = labels.get(k) {
+                if rng.gen::<f64>() < keep_label {
+                    if let Ok(t) = vocab.label_token(k, v) {
+                        cond.push(t);
+                    }
+                }
+            }
+        }
+    }
+    FrameExample {
+        frames: values[start * s..(start + len) * s].to_vec(),
+        hist,
+        cond,
+        classes,
+    }
+}
+
+/// A batch as tensors.
+pub struct FrameBatch {
+    pub val: Tensor,
+    pub chg: Tensor,
+    pub cond: Tensor,
+    pub inp: Tensor,
+    pub vel: Tensor,
+    pub prev: Tensor,
+    pub rel_t: Tensor,
+    pub rel_w: Tensor,
+    pub abs_t: Tensor,
+    pub abs_w: Tensor,
+    pub frame_w: Tensor,
+    /// Per class kind: (batch rows, class indices).
+    pub classes: Vec<Option<(Tensor, Tensor)>>,
+    pub frames: usize,
+    pub t: usize,
+}
+
+pub fn batch(cfg: &FrameConfig, exs: &[FrameExample], dev: &Device) -> Result<FrameBatch> {
+    let s = cfg.slots;
+    let b = exs.len();
+    let t = exs
+        .iter()
+        .map(|e| e.frames.len() / s)
+        .max()
+        .unwrap_or(1)
+        .max(1);
+    let n = b * t * s;
+    let mut val = vec![0u32; n];
+    let mut chg = vec![cfg.none(); n];
+    let mut inp = vec![cfg.start(); n];
+    let mut vel = vec![cfg.none(); n];
+    let mut prev = vec![cfg.bins as u32; n];
+    let (mut rel_t, mut rel_w) = (vec![0u32; n], vec![0f32; n]);
+    let (mut abs_t, mut abs_w) = (vec![0u32; n], vec![0f32; n]);
+    let mut frame_w = vec![0f32; b * t];
+    let mut cond = vec![0f32; b * cfg.vocab_size];
+    let mut cls: Vec<(Vec<u32>, Vec<u32>)> = vec![(Vec::new(), Vec::new()); cfg.classes.len()];
+    let mut frames = 0;
+    for (i, e) in exs.iter().enumerate() {
+        for &c in &e.cond {
+            cond[i * cfg.vocab_size + c as usize] = 1.0;
+        }
+        for &(ci, idx) in &e.classes {
+            cls[ci].0.push(i as u32);
+            cls[ci].1.push(idx as u32);
+        }
+        let nf = e.frames.len() / s;
+        let get = |f: isize| -> Option<&[u32]> {
+            if f >= 0 {
+                Some(&e.frames[f as usize * s..(f as usize + 1) * s])
+            } else {
+                e.hist.get((-f - 1) as usize).map(|v| v.as_slice())
+            }
+        };
+        for f in 0..nf {
+            frames += 1;
+            frame_w[i * t + f] = 1.0;
+            let cur = get(f as isize).expect("in window");
+            let p1 = get(f as isize - 1);
+            let p2 = get(f as isize - 2);
+            let changes = frame_changes(cfg, cur, p1);
+            let (v, p) = local_context(cfg, p1, p2);
+            let base = (i * t + f) * s;
+            for k in 0..s {
+                val[base + k] = cur[k];
+                chg[base + k] = changes[k];
+                vel[base + k] = v[k];
+                prev[base + k] = p[k];
+                if k > 0 {
+                    inp[base + k] = changes[k - 1];
+                }
+                abs_t[base + k] = cur[k];
+                match p1 {
+                    None => abs_w[base + k] = 1.0,
+                    Some(_) => {
+                        rel_t[base + k] = changes[k];
+                        rel_w[base + k] = 1.0;
+                        if changes[k] == cfg.esc() {
+                            abs_w[base + k] = 1.0;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let u = |v: Vec<u32>| Tensor::from_vec(v, (b, t, s), dev);
+    let classes = cls
+        .into_iter()
+        .map(|(rows, idx)| -> Result<Option<(Tensor, Tensor)>> {
+            if rows.is_empty() {
+                return Ok(None);
+            }
+            let k = rows.len();
+            Ok(Some((
+                Tensor::from_vec(rows, k, dev)?,
+                Tensor::from_vec(idx, k, dev)?,
+            )))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(FrameBatch {
+        val: u(val)?,
+        chg: u(chg)?,
+        cond: Tensor::from_vec(cond, (b, cfg.vocab_size), dev)?,
+        inp: Tensor::from_vec(inp, (b * t, s), dev)?,
+        vel: Tensor::from_vec(vel, (b * t, s), dev)?,
+        prev: Tensor::from_vec(prev, (b * t, s), dev)?,
+        rel_t: Tensor::from_vec(rel_t, n, dev)?,
+        rel_w: Tensor::from_vec(rel_w, n, dev)?,
+        abs_t: Tensor::from_vec(abs_t, n, dev)?,
+        abs_w: Tensor::from_vec(abs_w, n, dev)?,
+        frame_w: Tensor::from_vec(frame_w, (b, t), dev)?,
+        classes,
+        frames,
+        t,
+    })
+}
+
+/// Summed negative log-likelihood of `targets` under `logits: [N, C]`,
+/// weighted per row.
+fn weighted_nll(logits: &Tensor, targets: &Tensor, w: &Tensor) -> candle_core::Result<Tensor> {
+    let lsm = candle_nn::ops::log_softmax(logits, D::Minus1)?;
+    let picked = lsm.gather(&targets.unsqueeze(1)?, 1)?.squeeze(1)?;
+    (picked * w)?.sum_all()?.neg()
+}
+
+/// What one batch costs.
+pub struct FrameLosses {
+    /// Summed nats over the batch's frames (the language model).
+    pub nats: Tensor,
+    /// Summed class cross-entropies (mean over rows per kind), if any.
+    pub cls: Option<Tensor>,
+    /// Per class kind: (hits, rows).
+    pub hits: Vec<(usize, usize)>,
+}
+
+pub fn losses(net: &FrameNet, b: &FrameBatch) -> Result<FrameLosses> {
+    let c = &net.cfg;
+    let h = net.global(&b.val, &b.chg, &b.cond)?;
+    let (bs, t1, dg) = h.dims3()?;
+    let t = t1 - 1;
+    let ctx = h.narrow(1, 0, t)?.reshape((bs * t, dg))?;
+    let (rel, abs) = net.local(&ctx, &b.inp, &b.vel, &b.prev)?;
+    let n = bs * t * c.slots;
+    let nats = (weighted_nll(&rel.reshape((n, c.rel_classes()))?, &b.rel_t, &b.rel_w)?
+        + weighted_nll(&abs.reshape((n, c.bins))?, &b.abs_t, &b.abs_w)?)?;
+    let mut cls: Option<Tensor> = None;
+    let mut hits = Vec::new();
+    if !c.classes.is_empty() && b.classes.iter().any(|x| x.is_some()) {
+        let logits = net.classify(&h, &b.frame_w)?;
+        for (k, lg) in logits.iter().enumerate() {
+            let Some((rows, idx)) = &b.classes[k] else {
+                hits.push((0, 0));
+                continue;
+            };
+            let x = lg.index_select(rows, 0)?;
+            let pred = x.argmax(D::Minus1)?.to_vec1::<u32>()?;
+            let truth = idx.to_vec1::<u32>()?;
+            hits.push((
+                pred.iter().zip(&truth).filter(|(a, b)| a == b).count(),
+                truth.len(),
+            ));
+            let l = candle_nn::ops::log_softmax(&x, D::Minus1)?
+                .gather(&idx.unsqueeze(1)?, 1)?
+                .mean_all()?
+                .neg()?;
+            cls = Some(match cls {
+                Some(a) => (a + l)?,
+                None => l,
+            });
+        }
+    }
+    Ok(FrameLosses { nats, cls, hits })
+}
+
+/// Training sequences as value frames (mirrors beside), with cumulative
+/// frame counts for length-weighted draws.
+pub struct FrameData {
+    pub seqs: Vec<(Vec<u32>, Option<Vec<u32>>, Labels)>,
+    pub cum: Vec<usize>,
+}
+
+impl FrameData {
+    pub fn new(train: &[Sequence], fl: usize) -> FrameData {
+        let mut acc = 0;
+        let mut cum = Vec::new();
+        let seqs = train
+            .iter()
+            .map(|s| {
+                acc += s.frames(fl).max(1);
+                cum.push(acc);
+                (
+                    value_frames(&s.tokens, fl),
+                    s.mirrored.as_ref().map(|m| value_frames(m, fl)),
+                    s.labels.clone(),
+                )
+            })
+            .collect();
+        FrameData { seqs, cum }
+    }
+}
+
+/// One optimisation step on a fresh batch; returns (nats per frame,
+/// frames).
+#[allow(clippy::too_many_arguments)]
+pub fn train_step(
+    net: &FrameNet,
+    opt: &mut AdamW,
+    vocab: &Vocabulary,
+    data: &FrameData,
+    window: usize,
+    s: &RunSettings,
+    rng: &mut StdRng,
+    dev: &Device,
+) -> Result<(f64, usize)> {
+    let c = &net.cfg;
+    let as_cls = !c.classes.is_empty() && rng.gen::<f64>() < s.classify_fraction;
+    let total = *data.cum.last().expect("training data");
+    let mut exs = Vec::with_capacity(s.batch);
+    for _ in 0..s.batch {
+        let r = rng.gen_range(0..total);
+        let i = data.cum.partition_point(|&x| x <= r);
+        let (plain, mirror, labels) = &data.seqs[i];
+        let values = match (mirror, rng.gen::<bool>()) {
+            (Some(m), true) => m,
+            _ => plain,
+        };
+        let n = values.len() / c.slots;
+        let w = window.min(n);
+        let start = rng.gen_range(0..=n - w);
+        exs.push(example(
+            c,
+            vocab,
+            values,
+            start,
+            w,
+            labels,
+            as_cls,
+            s.keep_label,
+            rng,
+        ));
+    }
+    let b = batch(c, &exs, dev)?;
+    let l = losses(net, &b)?;
+    let per_token = (&l.nats / (b.frames * c.slots) as f64)?;
+    let total_loss = match &l.cls {
+        Some(x) => (&per_token + (x * s.class_weight)?)?,
+        None => per_token,
+    };
+    let nats = l.nats.to_scalar::<f32>()? as f64 / b.frames as f64;
+    if !nats.is_finite() {
+        bail!(
+            "training diverged: loss {nats} at step {} (lower --lr)",
+            opt.step
+        );
+    }
+    let grads = total_loss.backward()?;
+    opt.step(&net.params, &grads)?;
+    Ok((nats, b.frames))
+}
+
+/// Held-out figures: bits per frame over every frame of the validation
+/// sequences (windows of the model's context, each with its true history)
+/// and class accuracy per kind on the same windows.
+pub struct FrameEval {
+    pub bits_per_frame: f64,
+    pub frames: usize,
+    pub accuracy: Vec<(String, f64, usize)>,
+}
+
+pub fn evaluate(
+    net: &FrameNet,
+    vocab: &Vocabulary,
+    val: &[Sequence],
+    fl: usize,
+    max_windows: usize,
+    dev: &Device,
+) -> Result<FrameEval> {
+    let c = &net.cfg;
+    let values: Vec<Vec<u32>> = val.iter().map(|s| value_frames(&s.tokens, fl)).collect();
+    let mut windows = Vec::new();
+    for (i, v) in values.iter().enumerate() {
+        let n = v.len() / c.slots;
+        let mut st = 0;
+        while st < n {
+            let len = c.max_frames.min(n - st);
+            windows.push((i, st, len));
+            st += len;
+        }
+    }
+    if windows.len() > max_windows {
+        let n = windows.len();
+        windows = (0..max_windows)
+            .map(|i| windows[i * n / max_windows])
+            .collect();
+    }
+    if windows.is_empty() {
+        bail!("no validation windows (the split held out nothing)");
+    }
+    let mut rng = <StdRng as rand::SeedableRng>::seed_from_u64(7);
+    let (mut nats, mut frames) = (0f64, 0usize);
+    let mut hits = vec![(0usize, 0usize); c.classes.len()];
+    for chunk in windows.chunks(8) {
+        for as_cls in [false, true] {
+            if as_cls && c.classes.is_empty() {
+                continue;
+            }
+            let exs: Vec<FrameExample> = chunk
+                .iter()
+                .map(|&(i, st, len)| {
+                    let l = &val[i].labels;
+                    example(c, vocab, &values[i], st, len, l, as_cls, 1.0, &mut rng)
+                })
+                .collect();
+            let b = batch(c, &exs, dev)?;
+            let l = losses(net, &b)?;
+            if as_cls {
+                for (acc, (a, n)) in hits.iter_mut().zip(l.hits) {
+                    acc.0 += a;
+                    acc.1 += n;
+                }
+            } else {
+                nats += l.nats.to_scalar::<f32>()? as f64;
+                frames += b.frames;
+            }
+        }
+    }
+    Ok(FrameEval {
+        bits_per_frame: nats / frames.max(1) as f64 / std::f64::consts::LN_2,
+        frames,
+        accuracy: c
+            .classes
+            .iter()
+            .zip(hits)
+            .map(|((k, _), (a, n))| (k.clone(), a as f64 / n.max(1) as f64, n))
+            .collect(),
+    })
+}
+
+/// What a frame-model checkpoint's JSON side holds.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FrameState {
+    pub config: FrameConfig,
+    pub vocabulary: Vocabulary,
+    pub settings: RunSettings,
+    pub step: usize,
+    pub adam_step: usize,
+    pub history: Vec<super::LogPoint>,
+    pub data: crate::lm::manifest::DataInfo,
+    pub metrics: BTreeMap<String, f64>,
+    pub train_seconds: f64,
+}
+
+/// Loads a frame-model checkpoint folder.
+pub fn load(dir: &std::path::Path, dev: &Device) -> Result<(FrameState, FrameNet, AdamW)> {
+    let (st, t, file): (FrameState, _, _) = super::load_parts(dir, dev)?;
+    st.config
+        .validate(&dir.join(super::CKPT_JSON).display().to_string())
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let net = FrameNet::new(st.config.clone(), dev)?;
+    net.params.load_tensors(&t, &file)?;
+    let opt = super::restore_adam(&t, &st.settings, st.adam_step);
+    Ok((st, net, opt))
+}
+
+/// Sizes and schedule of a frame-model run (the trainer's flags).
+#[derive(Clone, Debug)]
+pub struct FrameRun {
+    pub out: std::path::PathBuf,
+    pub resume: bool,
+    pub radius: usize,
+    pub d_emb: usize,
+    pub d_global: usize,
+    pub global_layers: usize,
+    pub global_heads: usize,
+    pub d_local: usize,
+    pub local_layers: usize,
+    pub local_heads: usize,
+    pub frames: usize,
+    pub cond_kinds: Vec<String>,
+    pub classes: Vec<(String, Vec<String>)>,
+    pub settings: RunSettings,
+}
+
+/// Trains (or resumes) a frame model on `corpus`, checkpointing into
+/// `run.out` at every evaluation and at the end; prints progress lines to
+/// standard error and returns the final state.
+pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameState> {
+    let dev = super::device();
+    let fl = vocab.frame_len();
+    let (mut st, net, mut opt) = if run.resume {
+        load(&run.out, &dev)?
+    } else {
+        let cfg = FrameConfig {
+            bins: vocab.bins,
+            slots: fl - 1,
+            radius: run.radius,
+            d_emb: run.d_emb,
+            d_global: run.d_global,
+            global_layers: run.global_layers,
+            global_heads: run.global_heads,
+            d_local: run.d_local,
+            local_layers: run.local_layers,
+            local_heads: run.local_heads,
+            max_frames: run.frames,
+            vocab_size: vocab.size(),
+            cond_kinds: run.cond_kinds.clone(),
+            classes: run.classes.clone(),
+            ln_eps: 1e-5,
+        };
+        cfg.validate("--frame flags")
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let net = FrameNet::new(cfg.clone(), &dev)?;
+        let st = FrameState {
+            config: cfg,
+            vocabulary: vocab.clone(),
+            settings: run.settings.clone(),
+            step: 0,
+            adam_step: 0,
+            history: Vec::new(),
+            data: corpus.info.clone(),
+            metrics: BTreeMap::new(),
+            train_seconds: 0.0,
+        };
+        let opt = AdamW::new(run.settings.lr, run.settings.weight_decay);
+        (st, net, opt)
+    };
+    let s = st.settings.clone();
+    let data = FrameData::new(&corpus.train, fl);
+    eprintln!(
+        "frame model: {} parameters; global d {} × {} layers, local d {} × {} layers, context {} frames, change radius {}",
+        net.params.count(),
+        net.cfg.d_global,
+        net.cfg.global_layers,
+        net.cfg.d_local,
+        net.cfg.local_layers,
+        net.cfg.max_frames,
+        net.cfg.radius
+    );
+    let mut rng = <StdRng as rand::SeedableRng>::seed_from_u64(s.seed.wrapping_add(st.step as u64));
+    std::fs::create_dir_all(&run.out)?;
+    let t0 = std::time::Instant::now();
+    let spent = st.train_seconds;
+    let (mut acc, mut n_acc, mut frames_acc) = (0f64, 0usize, 0usize);
+    let mut t_win = std::time::Instant::now();
+    while st.step < s.steps {
+        if s.max_seconds > 0.0 && spent + t0.elapsed().as_secs_f64() > s.max_seconds {
+            eprintln!("time limit reached at step {}", st.step);
+            break;
+        }
+        opt.lr = super::lr_at(&s, st.step);
+        let (nats, frames) = train_step(
+            &net,
+            &mut opt,
+            vocab,
+            &data,
+            net.cfg.max_frames,
+            &s,
+            &mut rng,
+            &dev,
+        )?;
+        st.step += 1;
+        acc += nats;
+        n_acc += 1;
+        frames_acc += frames;
+        if st.step % s.eval_every == 0 || st.step == s.steps {
+            let fps = frames_acc as f64 / t_win.elapsed().as_secs_f64().max(1e-9);
+            let ev = evaluate(&net, vocab, &corpus.val, fl, 48, &dev)?;
+            let acc_s: Vec<String> = ev
+                .accuracy
+                .iter()
+                .map(|(k, a, n)| format!("{k} {:.1}% of {n}", 100.0 * a))
+                .collect();
+            eprintln!(
+                "step {:>6}  lr {:.2e}  train {:.1} bits/frame  val {:.1} bits/frame  {:.0} frames/s ({:.0} tokens/s)  {}",
+                st.step,
+                opt.lr,
+                acc / n_acc as f64 / std::f64::consts::LN_2,
+                ev.bits_per_frame,
+                fps,
+                fps * fl as f64,
+                acc_s.join("  ")
+            );
+            st.history.push(super::LogPoint {
+                step: st.step,
+                lr: opt.lr,
+                train_loss: acc / n_acc as f64 / fl as f64,
+                val_loss: Some(ev.bits_per_frame * std::f64::consts::LN_2 / fl as f64),
+                val_bits_per_frame: Some(ev.bits_per_frame),
+                tokens_per_s: fps * fl as f64,
+            });
+            st.adam_step = opt.step;
+            st.train_seconds = spent + t0.elapsed().as_secs_f64();
+            super::save_parts(&run.out, &net.params, &opt, &st)?;
+            (acc, n_acc, frames_acc) = (0.0, 0, 0);
+            t_win = std::time::Instant::now();
+        }
+    }
+    st.train_seconds = spent + t0.elapsed().as_secs_f64();
+    let ev = evaluate(&net, vocab, &corpus.val, fl, usize::MAX, &dev)?;
+    st.metrics
+        .insert("val_bits_per_frame".into(), ev.bits_per_frame);
+    st.metrics.insert("val_frames".into(), ev.frames as f64);
+    st.metrics
+        .insert("parameters".into(), net.params.count() as f64);
+    st.metrics.insert("train_seconds".into(), st.train_seconds);
+    for (k, a, n) in &ev.accuracy {
+        st.metrics.insert(format!("val_accuracy_{k}"), *a);
+        st.metrics.insert(format!("val_windows_{k}"), *n as f64);
+    }
+    st.adam_step = opt.step;
+    super::save_parts(&run.out, &net.params, &opt, &st)?;
+    Ok(st)
+}

@@ -1,0 +1,306 @@
+//! ONNX export of the frame model as two step graphs with static shapes:
+//! the global step (one frame, or the conditioning, per call) and the
+//! local step (one slot per call). Both take fixed-capacity key/value
+//! caches whose unused rows the `bias` input masks, and return only the new
+//! position's keys and values; the runtime writes them into its caches in
+//! place.
+
+use super::export::{attr_i, value_info, Builder, DataType};
+use super::frame::FrameNet;
+use crate::lm::frame::{
+    global_inputs, global_outputs, local_inputs, local_outputs, FrameConfig, FrameManifest,
+    FRAME_KIND, GLOBAL_ONNX, LOCAL_ONNX,
+};
+use crate::lm::manifest::{sha256_hex, DataInfo, MANIFEST_FORMAT};
+use crate::tokenize::vocab::Vocabulary;
+use prost::Message;
+use std::collections::BTreeMap;
+use std::path::Path;
+use tract_onnx::pb::ModelProto;
+
+fn gather(g: &mut Builder, table: &str, ids: &str) -> String {
+    g.op("Gather", &[table, ids], vec![attr_i("axis", 0)], None)
+}
+
+/// Pre-LN blocks `{pre}{l}` over `x: [1, 1, d]` with cached keys/values
+/// (`cache_k_{l}` `[1, H, C, dh]`) and the `bias` input; names the new
+/// keys/values `k_{l}`, `v_{l}`.
+fn cached_blocks(
+    g: &mut Builder,
+    x: &str,
+    pre: &str,
+    layers: usize,
+    d: usize,
+    heads: usize,
+    eps: f32,
+) -> String {
+    let (d, h, dh) = (d as i64, heads as i64, (d / heads) as i64);
+    let mut x = x.to_string();
+    for l in 0..layers {
+        let n = |s: &str| format!("{pre}{l}.{s}");
+        let (q, k, v) = g.qkv(&x, &n, eps, h, dh);
+        let kn = g.op("Identity", &[&k], vec![], Some(&format!("k_{l}")));
+        let vn = g.op("Identity", &[&v], vec![], Some(&format!("v_{l}")));
+        let kc = g.op(
+            "Concat",
+            &[&format!("cache_k_{l}"), &kn],
+            vec![attr_i("axis", 2)],
+            None,
+        );
+        let vc = g.op(
+            "Concat",
+            &[&format!("cache_v_{l}"), &vn],
+            vec![attr_i("axis", 2)],
+            None,
+        );
+        let att = g.attend(&q, &kc, &vc, Some("bias"), d, dh);
+        let o = g.lin(&att, &n("o"));
+        x = g.op("Add", &[&x, &o], vec![], None);
+        x = g.mlp_residual(&x, &n, eps);
+    }
+    x
+}
+
+fn kv_info(
+    names: &[String],
+    heads: usize,
+    cap: usize,
+    dh: usize,
+    out: bool,
+) -> Vec<tract_onnx::pb::ValueInfoProto> {
+    let len = if out { 1 } else { cap };
+    names
+        .iter()
+        .map(|n| {
+            value_info(
+                n,
+                DataType::Float,
+                &["1", &heads.to_string(), &len.to_string(), &dh.to_string()],
+            )
+        })
+        .collect()
+}
+
+/// The global step graph.
+pub fn global_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
+    let c = &net.cfg;
+    let mut g = Builder::default();
+    let mut w = BTreeMap::new();
+    for (k, v) in net.params.tensors() {
+        if k.starts_with("g") || k.starts_with("cls.") {
+            w.insert(k, v);
+        }
+    }
+    g.weights(w)?;
+    let eps = c.ln_eps as f32;
+    let dg = c.d_global as i64;
+    let ev = gather(&mut g, "g_val", "val");
+    let ec = gather(&mut g, "g_chg", "chg");
+    let e = g.op("Add", &[&ev, &ec], vec![], None);
+    let flat = g.i64("shape_frame", &[1, 1, (c.slots * c.d_emb) as i64]);
+    let e = g.op("Reshape", &[&e, &flat], vec![], None);
+    let frame = g.lin(&e, "g_in");
+    let cv = g.op("MatMul", &["cond", "g_cond"], vec![], None);
+    let one_d = g.i64("shape_one", &[1, 1, dg]);
+    let cv = g.op("Reshape", &[&cv, &one_d], vec![], None);
+    let one = g.scalar("one", 1.0);
+    let not_cond = g.op("Sub", &[&one, "is_cond"], vec![], None);
+    let a = g.op("Mul", &[&frame, &not_cond], vec![], None);
+    let b = g.op("Mul", &[&cv, "is_cond"], vec![], None);
+    let x = g.op("Add", &[&a, &b], vec![], None);
+    let p = gather(&mut g, "g_pos", "pos");
+    let x = g.op("Add", &[&x, &p], vec![], None);
+    let x = cached_blocks(
+        &mut g,
+        &x,
+        "g",
+        c.global_layers,
+        c.d_global,
+        c.global_heads,
+        eps,
+    );
+    let h = g.ln(&x, "g_ln", eps);
+    g.op("Identity", &[&h], vec![], Some("h"));
+    for (k, _) in &c.classes {
+        let m = g.op("MatMul", &[&h, &format!("cls.{k}.w")], vec![], None);
+        g.op(
+            "Add",
+            &[&m, &format!("cls.{k}.b")],
+            vec![],
+            Some(&format!("cls_{k}")),
+        );
+    }
+    let cap = c.max_frames + 1;
+    let dh = c.d_global / c.global_heads;
+    let names = global_inputs(c);
+    let s = c.slots.to_string();
+    let mut inputs = vec![
+        value_info("val", DataType::Int64, &["1", &s]),
+        value_info("chg", DataType::Int64, &["1", &s]),
+        value_info("cond", DataType::Float, &["1", &c.vocab_size.to_string()]),
+        value_info("is_cond", DataType::Float, &["1", "1"]),
+        value_info("pos", DataType::Int64, &["1"]),
+        value_info("bias", DataType::Float, &["1", &(cap + 1).to_string()]),
+    ];
+    inputs.extend(kv_info(&names[6..], c.global_heads, cap, dh, false));
+    let outs = global_outputs(c);
+    let mut outputs = vec![value_info(
+        "h",
+        DataType::Float,
+        &["1", "1", &c.d_global.to_string()],
+    )];
+    for (k, v) in &c.classes {
+        outputs.push(value_info(
+            &format!("cls_{k}"),
+            DataType::Float,
+            &["1", "1", &v.len().to_string()],
+        ));
+    }
+    outputs.extend(kv_info(
+        &outs[1 + c.classes.len()..],
+        c.global_heads,
+        cap,
+        dh,
+        true,
+    ));
+    Ok(g.model("choreo_frame_global", inputs, outputs))
+}
+
+/// The local step graph.
+pub fn local_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
+    let c = &net.cfg;
+    let mut g = Builder::default();
+    let mut w = BTreeMap::new();
+    for (k, v) in net.params.tensors() {
+        if k.starts_with("l") || k.starts_with("rel.") || k.starts_with("abs.") {
+            w.insert(k, v);
+        }
+    }
+    g.weights(w)?;
+    let eps = c.ln_eps as f32;
+    let x = g.lin("ctx", "l_ctx");
+    let mut x = x;
+    for (table, ids) in [
+        ("l_in", "inp"),
+        ("l_vel", "vel"),
+        ("l_prev", "prev"),
+        ("l_pos", "slot"),
+    ] {
+        let e = gather(&mut g, table, ids);
+        x = g.op("Add", &[&x, &e], vec![], None);
+    }
+    let shape = g.i64("shape_one", &[1, 1, c.d_local as i64]);
+    let x = g.op("Reshape", &[&x, &shape], vec![], None);
+    let x = cached_blocks(
+        &mut g,
+        &x,
+        "l",
+        c.local_layers,
+        c.d_local,
+        c.local_heads,
+        eps,
+    );
+    let x = g.ln(&x, "l_ln", eps);
+    let r = g.op("MatMul", &[&x, "rel.w"], vec![], None);
+    g.op("Add", &[&r, "rel.b"], vec![], Some("rel"));
+    let a = g.op("MatMul", &[&x, "abs.w"], vec![], None);
+    g.op("Add", &[&a, "abs.b"], vec![], Some("abs"));
+    let cap = c.slots;
+    let dh = c.d_local / c.local_heads;
+    let names = local_inputs(c);
+    let mut inputs = vec![
+        value_info("ctx", DataType::Float, &["1", &c.d_global.to_string()]),
+        value_info("inp", DataType::Int64, &["1"]),
+        value_info("vel", DataType::Int64, &["1"]),
+        value_info("prev", DataType::Int64, &["1"]),
+        value_info("slot", DataType::Int64, &["1"]),
+        value_info("bias", DataType::Float, &["1", &(cap + 1).to_string()]),
+    ];
+    inputs.extend(kv_info(&names[6..], c.local_heads, cap, dh, false));
+    let outs = local_outputs(c);
+    let mut outputs = vec![
+        value_info(
+            "rel",
+            DataType::Float,
+            &["1", "1", &c.rel_classes().to_string()],
+        ),
+        value_info("abs", DataType::Float, &["1", "1", &c.bins.to_string()]),
+    ];
+    outputs.extend(kv_info(&outs[2..], c.local_heads, cap, dh, true));
+    Ok(g.model("choreo_frame_local", inputs, outputs))
+}
+
+/// Writes both graphs and the manifest into `dir`; returns the manifest.
+pub fn export(
+    net: &FrameNet,
+    vocabulary: &Vocabulary,
+    data: DataInfo,
+    metrics: BTreeMap<String, f64>,
+    training: serde_json::Value,
+    dir: &Path,
+) -> anyhow::Result<FrameManifest> {
+    std::fs::create_dir_all(dir)?;
+    let gb = global_model(net)?.encode_to_vec();
+    let lb = local_model(net)?.encode_to_vec();
+    std::fs::write(dir.join(GLOBAL_ONNX), &gb)?;
+    std::fs::write(dir.join(LOCAL_ONNX), &lb)?;
+    let m = FrameManifest {
+        format: MANIFEST_FORMAT,
+        kind: FRAME_KIND.into(),
+        config: FrameConfig::clone(&net.cfg),
+        vocabulary: vocabulary.clone(),
+        global_onnx: GLOBAL_ONNX.into(),
+        global_sha256: sha256_hex(&gb),
+        local_onnx: LOCAL_ONNX.into(),
+        local_sha256: sha256_hex(&lb),
+        data,
+        metrics,
+        training,
+    };
+    m.save(dir)?;
+    Ok(m)
+}
+
+/// Max |tract − candle| over the change and absolute logits of a window
+/// from a sequence's start (`values`: `frames × slots` value tokens),
+/// conditioned on `labels`; and the largest |logit| for scale.
+pub fn parity(
+    net: &FrameNet,
+    vocab: &Vocabulary,
+    dir: &Path,
+    values: &[u32],
+    labels: &crate::motion::Labels,
+) -> anyhow::Result<(f32, f32)> {
+    use super::frame::{batch, example};
+    let c = &net.cfg;
+    let dev = super::device();
+    let n = (values.len() / c.slots).min(c.max_frames);
+    let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(0);
+    let ex = example(c, vocab, values, 0, n, labels, false, 1.0, &mut rng);
+    let b = batch(c, &[ex], &dev)?;
+    let h = net.global(&b.val, &b.chg, &b.cond)?;
+    let ctx = h.narrow(1, 0, n)?.reshape((n, c.d_global))?;
+    let (rel, abs) = net.local(&ctx, &b.inp, &b.vel, &b.prev)?;
+    let rel = rel.flatten_all()?.to_vec1::<f32>()?;
+    let abs = abs.flatten_all()?.to_vec1::<f32>()?;
+    let session = crate::lm::frame_runtime::FrameSession::load(dir)?;
+    let cond = session.cond(labels)?;
+    let frames: Vec<Vec<u32>> = values[..n * c.slots]
+        .chunks_exact(c.slots)
+        .map(|f| f.to_vec())
+        .collect();
+    let got = session.teacher_forced(&cond, &frames)?;
+    let (mut worst, mut scale) = (0f32, 0f32);
+    let (nr, na) = (c.slots * c.rel_classes(), c.slots * c.bins);
+    for (f, (r, a)) in got.iter().enumerate() {
+        for (x, y) in r.iter().zip(&rel[f * nr..(f + 1) * nr]) {
+            worst = worst.max((x - y).abs());
+            scale = scale.max(y.abs());
+        }
+        for (x, y) in a.iter().zip(&abs[f * na..(f + 1) * na]) {
+            worst = worst.max((x - y).abs());
+            scale = scale.max(y.abs());
+        }
+    }
+    Ok((worst, scale))
+}
