@@ -66,3 +66,14 @@ pub fn files_with_ext(dir: &std::path::Path, exts: &[&str]) -> Vec<PathBuf> {
     out.sort();
     out
 }
+
+/// How many of a corpus's `n` sequences (sorted by a hash of their names)
+/// are held out: `val_fraction` of them, at least one when there are two
+/// or more, never all.
+pub fn held_out_count(n: usize, val_fraction: f64) -> usize {
+    if n < 2 {
+        0
+    } else {
+        ((n as f64 * val_fraction).round() as usize).clamp(1, n - 1)
+    }
+}

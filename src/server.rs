@@ -36,8 +36,9 @@ pub struct ServeConfig {
     /// Folders or files to ingest at start-up (skipped when already stored).
     #[arg(long, env = "CHOREO_INGEST", value_delimiter = ',')]
     pub ingest: Vec<PathBuf>,
-    /// The motion language model: a folder with manifest.json and
-    /// model.onnx (written by choreo-train). Missing folder = generate and
+    /// The motion model: a folder with manifest.json and its ONNX graphs
+    /// (written by choreo-train; the manifest's `kind` says which model,
+    /// `motion-lm` or `motion-frame-lm`). Missing folder = generate and
     /// classify answer 503; a broken model stops start-up.
     #[arg(long, env = "CHOREO_MODEL", default_value = "models/default")]
     pub model: PathBuf,
@@ -99,22 +100,17 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     let searcher = Searcher::open(store.clone(), HnswParams::default()).await?;
     let model = if cfg.model.exists() {
         let t0 = std::time::Instant::now();
-        let m = crate::lm::LmSession::load(&cfg.model)
+        let m = crate::lm::model::MotionModel::load(&cfg.model)
             .with_context(|| format!("--model {}", cfg.model.display()))?;
         eprintln!(
-            "model {} loaded in {:.2} s ({} layers, d_model {}, classes: {})",
+            "model {} ({}) loaded in {:.2} s; context {} frames; conditioned on: {}",
             cfg.model.display(),
+            m.kind(),
             t0.elapsed().as_secs_f64(),
-            m.config().n_layers,
-            m.config().d_model,
-            m.config()
-                .classes
-                .iter()
-                .map(|c| c.0.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
+            m.context_frames(),
+            m.cond_kinds().join(", ")
         );
-        Some(Arc::new(m))
+        Some(m)
     } else {
         eprintln!(
             "no model at {}: generate and classify will answer 503 (set --model)",

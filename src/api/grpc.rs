@@ -69,8 +69,13 @@ pub fn motion_pb(m: &Motion) -> pb::Motion {
     }
 }
 
+/// A request's sampling; none named (absent, or only a seed) = the
+/// recommended setting, as over REST.
 fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     let s = s.unwrap_or_default();
+    if s.temperature == 0.0 && s.top_k == 0 && s.top_p == 0.0 {
+        return crate::lm::Sampling::recommended(s.seed);
+    }
     crate::lm::Sampling {
         temperature: s.temperature,
         top_k: s.top_k as usize,

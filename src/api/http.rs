@@ -311,13 +311,13 @@ async fn delete_motion(
     Ok(StatusCode::NO_CONTENT)
 }
 
-/// Sampling settings as JSON (all optional: greedy by default).
+/// Sampling settings as JSON, all optional. Without a temperature the
+/// request gets the recommended setting (`lm::generate::RECOMMENDED`), with
+/// its own `top_k` / `top_p` where given; `"temperature": 0` is greedy.
 #[derive(Clone, Debug, Default, Deserialize)]
 pub struct SamplingJson {
-    #[serde(default)]
-    pub temperature: f64,
-    #[serde(default)]
-    pub top_k: usize,
+    pub temperature: Option<f64>,
+    pub top_k: Option<usize>,
     pub top_p: Option<f64>,
     #[serde(default)]
     pub seed: u64,
@@ -325,11 +325,19 @@ pub struct SamplingJson {
 
 impl SamplingJson {
     pub fn to_sampling(&self) -> crate::lm::Sampling {
-        crate::lm::Sampling {
-            temperature: self.temperature,
-            top_k: self.top_k,
-            top_p: self.top_p.unwrap_or(1.0),
-            seed: self.seed,
+        let r = crate::lm::Sampling::recommended(self.seed);
+        match self.temperature {
+            None => crate::lm::Sampling {
+                top_k: self.top_k.unwrap_or(r.top_k),
+                top_p: self.top_p.unwrap_or(r.top_p),
+                ..r
+            },
+            Some(t) => crate::lm::Sampling {
+                temperature: t,
+                top_k: self.top_k.unwrap_or(0),
+                top_p: self.top_p.unwrap_or(1.0),
+                seed: self.seed,
+            },
         }
     }
 }

@@ -2,12 +2,9 @@
 //! transports call.
 
 use super::{ApiError, AppState, MotionInput};
-use crate::lm::{
-    classify as lm_classify, forced_frames, prompt_slots, FrameDecoder, Generator, LmError,
-    LmSession, Sampling,
-};
+use crate::lm::model::{MotionGenerator, MotionModel};
+use crate::lm::{forced_frames, prompt_slots, FrameDecoder, LmError, Sampling};
 use crate::motion::{Labels, Motion};
-use std::sync::Arc;
 use std::time::Instant;
 use tokio::sync::mpsc;
 
@@ -38,7 +35,7 @@ impl From<LmError> for ApiError {
     }
 }
 
-fn model(state: &AppState) -> Result<Arc<LmSession>, ApiError> {
+fn model(state: &AppState) -> Result<MotionModel, ApiError> {
     state.model.clone().ok_or_else(|| {
         ApiError::Unavailable(
             "no model is loaded (start the server with --model DIR holding manifest.json and model.onnx)".into(),
@@ -61,8 +58,8 @@ pub struct GenerateParams {
 
 /// A generation ready to run: the generator and the forced slots.
 pub struct GenerateJob {
-    pub session: Arc<LmSession>,
-    gen: Generator,
+    pub session: MotionModel,
+    gen: MotionGenerator,
     forced: Vec<Vec<Option<u32>>>,
     pub frames: usize,
     pub labels: Labels,
@@ -71,8 +68,8 @@ pub struct GenerateJob {
 impl GenerateJob {
     /// The next frame's tokens.
     pub fn next(&mut self) -> Result<Vec<u32>, LmError> {
-        let fl = self.session.config().frame_len;
-        let f = self.gen.produced;
+        let fl = self.session.vocabulary().frame_len();
+        let f = self.gen.produced();
         let forced = self
             .forced
             .get(f)
@@ -85,7 +82,7 @@ impl GenerateJob {
 /// Validates a request and sets the generation up (cheap: no model step).
 pub async fn generate_job(state: &AppState, p: GenerateParams) -> Result<GenerateJob, ApiError> {
     let session = model(state)?;
-    let vocab = &session.manifest.vocabulary;
+    let vocab = session.vocabulary();
     if p.frames > MAX_GENERATE_FRAMES {
         return Err(ApiError::invalid(
             "frames",
@@ -127,7 +124,7 @@ pub async fn generate_job(state: &AppState, p: GenerateParams) -> Result<Generat
         (0, n) => n.min(MAX_GENERATE_FRAMES),
         (n, _) => n,
     };
-    let gen = Generator::new(session.clone(), &p.labels, &seed, p.sampling)?;
+    let gen = session.generator(&p.labels, &seed, p.sampling)?;
     Ok(GenerateJob {
         session,
         gen,
@@ -156,11 +153,11 @@ pub async fn generate(
     state
         .heavy("generate", move || {
             let t0 = Instant::now();
-            let mut all = Vec::with_capacity(job.frames * job.session.config().frame_len);
+            let mut all = Vec::with_capacity(job.frames * job.session.vocabulary().frame_len());
             for _ in 0..job.frames {
                 all.extend(job.next()?);
             }
-            let vocab = &job.session.manifest.vocabulary;
+            let vocab = job.session.vocabulary();
             let mut m = vocab.decode_motion(&all, "generated")?;
             m.labels = job.labels.clone();
             let secs = t0.elapsed().as_secs_f64();
@@ -188,7 +185,7 @@ pub struct StreamFrame {
 /// The model's skeleton and frame rate, for streamed frames.
 pub fn stream_format(state: &AppState) -> Result<(String, f64), ApiError> {
     let s = model(state)?;
-    let v = &s.manifest.vocabulary;
+    let v = s.vocabulary();
     Ok((v.skeleton.clone(), v.fps))
 }
 
@@ -213,7 +210,7 @@ pub async fn generate_stream(
             let t0 = Instant::now();
             let out = job
                 .next()
-                .and_then(|tokens| dec.decode(&job.session.manifest.vocabulary, &tokens));
+                .and_then(|tokens| dec.decode(job.session.vocabulary(), &tokens));
             let msg = out
                 .map_err(ApiError::from)
                 .map(|(rotations, translation)| StreamFrame {
@@ -234,8 +231,8 @@ pub async fn generate_stream(
 /// A live duet: the performer's prompt joints come in frame by frame, the
 /// model answers each with a full-body frame.
 pub struct DuetSession {
-    session: Arc<LmSession>,
-    gen: Generator,
+    session: MotionModel,
+    gen: MotionGenerator,
     slots: Vec<bool>,
     prev: Option<Motion>,
     /// The lowest floor seen so far (heights are tokenized against it).
@@ -259,8 +256,8 @@ impl DuetSession {
                 "a duet needs the joints the performer drives",
             ));
         }
-        let slots = prompt_slots(&session.manifest.vocabulary, joints)?;
-        let gen = Generator::new(session.clone(), labels, &[], sampling)?;
+        let slots = prompt_slots(session.vocabulary(), joints)?;
+        let gen = session.generator(labels, &[], sampling)?;
         let permit = state
             .workers
             .clone()
@@ -282,7 +279,7 @@ impl DuetSession {
     /// rate), one full-body frame out.
     pub fn step(&mut self, frame: Motion) -> Result<StreamFrame, ApiError> {
         let t0 = Instant::now();
-        let vocab = &self.session.manifest.vocabulary;
+        let vocab = self.session.vocabulary();
         if frame.frames() != 1 {
             return Err(ApiError::invalid(
                 "frame",
@@ -341,8 +338,8 @@ pub async fn classify(state: &AppState, motion: MotionInput) -> Result<Classes, 
     let m = state.resolve("motion", motion).await?;
     state
         .heavy("classify", move || {
-            let tokens = session.manifest.vocabulary.encode_motion(&m)?;
-            Ok(lm_classify(&session, &tokens, MAX_CLASSIFY_WINDOWS)?)
+            let tokens = session.vocabulary().encode_motion(&m)?;
+            Ok(session.classify(&tokens, MAX_CLASSIFY_WINDOWS)?)
         })
         .await
 }

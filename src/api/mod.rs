@@ -209,7 +209,7 @@ pub struct AppState {
     /// generate, classify; a stream holds one for its whole life).
     pub workers: Arc<Semaphore>,
     /// The motion language model, when one is installed.
-    pub model: Option<Arc<crate::lm::LmSession>>,
+    pub model: Option<crate::lm::model::MotionModel>,
     /// The learned in-betweener, when one is installed.
     pub inbetweener: Option<Arc<crate::lm::inbetween::Inbetweener>>,
     /// Request counts and latencies for `/metrics`.
@@ -221,7 +221,7 @@ impl AppState {
         store: Store,
         searcher: Searcher,
         workers: usize,
-        model: Option<Arc<crate::lm::LmSession>>,
+        model: Option<crate::lm::model::MotionModel>,
         inbetweener: Option<Arc<crate::lm::inbetween::Inbetweener>>,
         token: Option<String>,
     ) -> AppState {

@@ -13,6 +13,7 @@
 //!   indexed windows; each channel's series projected → 1,152.
 
 pub mod interpolate;
+pub mod lda;
 pub mod pca;
 
 use crate::motion::retarget::{retarget_to_smpl13, JointMap};

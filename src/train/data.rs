@@ -136,16 +136,7 @@ pub fn vocabulary_for(
     }
 }
 
-/// How many of a corpus's `n` sequences (sorted by a hash of their names)
-/// are held out: `val_fraction` of them, at least one when there are two
-/// or more, never all.
-pub fn held_out_count(n: usize, val_fraction: f64) -> usize {
-    if n < 2 {
-        0
-    } else {
-        ((n as f64 * val_fraction).round() as usize).clamp(1, n - 1)
-    }
-}
+pub use crate::data::held_out_count;
 
 /// Tokenizes and splits by sequence: within each corpus the sequences are
 /// ordered by a hash of their name and the first `val_fraction` (at least

@@ -1,0 +1,103 @@
+//! `choreo eval generate`: prints the generation table (see
+//! `choreo::service::eval_generate`).
+
+use anyhow::{bail, Context, Result};
+use choreo::lm::model::MotionModel;
+use choreo::lm::Sampling;
+use choreo::service::eval_generate::{eval_generate, GenOptions};
+use std::path::{Path, PathBuf};
+
+/// `T:K:P` (temperature, top-k, top-p), or `greedy`.
+pub fn parse_sampling(s: &str) -> Result<Sampling> {
+    if s == "greedy" {
+        return Ok(Sampling::default());
+    }
+    let parts: Vec<&str> = s.split(':').collect();
+    let [t, k, p] = parts[..] else {
+        bail!("--sampling: '{s}' is not T:K:P (temperature:top_k:top_p) or greedy");
+    };
+    let sm = Sampling {
+        temperature: t
+            .parse()
+            .with_context(|| format!("--sampling: temperature '{t}'"))?,
+        top_k: k
+            .parse()
+            .with_context(|| format!("--sampling: top_k '{k}'"))?,
+        top_p: p
+            .parse()
+            .with_context(|| format!("--sampling: top_p '{p}'"))?,
+        seed: 0,
+    };
+    sm.validate()
+        .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;
+    Ok(sm)
+}
+
+#[allow(clippy::too_many_arguments)]
+pub fn run(
+    model: &Path,
+    data: &Path,
+    labels: &str,
+    per_label: usize,
+    seconds: f64,
+    samplings: &[String],
+    json: bool,
+) -> Result<()> {
+    if per_label == 0 {
+        bail!("--per-label must be at least 1");
+    }
+    if !(seconds > 0.0 && seconds <= 120.0) {
+        bail!("--seconds: {seconds} (want 0 < s ≤ 120)");
+    }
+    let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
+    let samplings = samplings
+        .iter()
+        .map(|s| parse_sampling(s))
+        .collect::<Result<Vec<_>>>()?;
+    let o = GenOptions {
+        label_kind: labels.to_string(),
+        per_label,
+        seconds,
+        samplings,
+        val_fraction: 0.1,
+    };
+    let rows = eval_generate(&m, data, &o, &mut |line| eprintln!("{line}"))?;
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({ "model": m.kind(), "rows": rows }))?
+        );
+        return Ok(());
+    }
+    let f = |x: Option<f64>| x.map_or("-".into(), |v| format!("{v:.1}"));
+    println!(
+        "{} model, {} clips of {seconds} s per {labels}, held-out clips of {}",
+        m.kind(),
+        per_label,
+        PathBuf::from(data).display()
+    );
+    println!(
+        "| sampling | FID_k (real) | FID_g (real) | accel × | jerk × | skate × | frozen | diversity (real) | cond acc (real) | s/clip |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for r in rows {
+        println!(
+            "| {} | {} ({}) | {} ({}) | {:.2} | {:.2} | {:.2} | {:.0} % | {:.2} ({:.2}) | {:.0} % ({:.0} %) | {:.2} |",
+            r.sampling,
+            f(r.fid_k),
+            f(r.fid_k_real),
+            f(r.fid_g),
+            f(r.fid_g_real),
+            r.accel_ratio,
+            r.jerk_ratio,
+            r.skate_ratio,
+            100.0 * r.frozen,
+            r.diversity,
+            r.diversity_real,
+            100.0 * r.cond_acc,
+            100.0 * r.cond_acc_real,
+            r.seconds_per_clip
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,451 @@
+//! `choreo eval generate`: generated motion measured against held-out real
+//! clips of the same label (issue 15). For each label value with held-out
+//! clips, the model generates `per_label` clips of `seconds` conditioned on
+//! it; every sampling setting gives one row:
+//!
+//! - FID_k / FID_g (the project's kinetic and geometric features, SMPL-24
+//!   positions) of generated vs held-out segments, beside the same figure
+//!   for real training segments vs held-out ones (the real-vs-real yardstick);
+//! - acceleration, jerk and foot-skating ratios to the held-out clips
+//!   (acceleration and jerk on root-relative joint positions; skating on
+//!   the ankles' ground speed while within 3 cm of the clip's lowest ankle);
+//! - the frozen fraction: 1 s windows whose mean root-relative joint speed
+//!   is under a tenth of the held-out clips' mean;
+//! - diversity: mean pairwise distance of standardised kinetic features,
+//!   generated and real;
+//! - conditioning accuracy: an LDA fitted on real *training* windows only
+//!   (2 s windows of token statistics) names each generated window's label;
+//!   its accuracy on held-out real windows is the yardstick.
+//!
+//! Held-out clips are chosen as the trainer chooses them: sorted by a hash
+//! of their name, the first 10 % (at least one).
+//! Real and generated clips both go through the tokenizer and back, so the
+//! quantisation is the same on both sides.
+
+use crate::features::lda::{window_features, Lda};
+use crate::keyframes::metrics::{fid, geometric_features, kinetic_features};
+use crate::lm::manifest::sha256_hex;
+use crate::lm::model::MotionModel;
+use crate::lm::Sampling;
+use crate::motion::io::{read_path, ReadOptions};
+use crate::motion::labels::from_name;
+use crate::motion::rotation::Vec3;
+use crate::motion::skeleton::SMPL13_FROM_24;
+use crate::motion::{Labels, Motion, Skeleton};
+use crate::tokenize::vocab::Vocabulary;
+use serde::Serialize;
+use std::path::Path;
+
+/// One row: a label kind under one sampling setting.
+#[derive(Clone, Debug, Serialize)]
+pub struct GenRow {
+    pub label_kind: String,
+    pub sampling: String,
+    pub labels: usize,
+    pub clips: usize,
+    pub fid_k: Option<f64>,
+    pub fid_g: Option<f64>,
+    pub fid_k_real: Option<f64>,
+    pub fid_g_real: Option<f64>,
+    pub accel_ratio: f64,
+    pub jerk_ratio: f64,
+    pub skate_ratio: f64,
+    pub frozen: f64,
+    pub diversity: f64,
+    pub diversity_real: f64,
+    pub cond_acc: f64,
+    pub cond_acc_real: f64,
+    pub seconds_per_clip: f64,
+}
+
+pub struct GenOptions {
+    pub label_kind: String,
+    pub per_label: usize,
+    pub seconds: f64,
+    pub samplings: Vec<Sampling>,
+    pub val_fraction: f64,
+}
+
+/// A sampling setting as a row names it.
+pub fn sampling_name(s: &Sampling) -> String {
+    if s.temperature == 0.0 {
+        "greedy".into()
+    } else {
+        format!("t={} top_k={} top_p={}", s.temperature, s.top_k, s.top_p)
+    }
+}
+
+/// A SMPL-13 motion on the full SMPL-24 tree (dropped joints at rest),
+/// which has the same joint positions: the 13-joint offsets fold exactly
+/// the dropped joints' rest offsets.
+fn lift24(m: &Motion) -> Motion {
+    let n = m.frames();
+    let mut rot = vec![[0.0; 3]; n * 24];
+    for f in 0..n {
+        for (i, &k) in SMPL13_FROM_24.iter().enumerate() {
+            rot[f * 24 + k] = m.rotations[f * 13 + i];
+        }
+    }
+    Motion::new(
+        m.name.clone(),
+        m.fps,
+        Skeleton::smpl24(),
+        m.trans.clone(),
+        rot,
+        m.labels.clone(),
+    )
+    .expect("the SMPL-24 tree takes a lifted SMPL-13 motion")
+}
+
+/// What one clip (real or generated) measures.
+struct ClipStats {
+    kinetic: Vec<f64>,
+    geometric: Vec<f64>,
+    accel: f64,
+    jerk: f64,
+    skate: f64,
+    /// Mean root-relative joint speed per 1 s window (m/s).
+    window_speed: Vec<f64>,
+    /// Token-statistics windows for the conditioning judge.
+    lda_windows: Vec<Vec<f64>>,
+}
+
+const JUDGE_FRAMES: usize = 40;
+
+fn clip_stats(vocab: &Vocabulary, tokens: &[u32]) -> Result<ClipStats, String> {
+    let fl = vocab.frame_len();
+    let m = vocab
+        .decode_motion(tokens, "clip")
+        .map_err(|e| e.to_string())?;
+    let m24 = lift24(&m);
+    let p = m24.positions();
+    let j = 24;
+    let n = p.len() / j;
+    let fps = m.fps;
+    let rel = |f: usize, k: usize| -> Vec3 {
+        let a = p[f * j + k];
+        let r = p[f * j];
+        [a[0] - r[0], a[1] - r[1], a[2] - r[2]]
+    };
+    let body: Vec<usize> = SMPL13_FROM_24.to_vec();
+    let norm = |v: Vec3| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let (mut acc, mut jerk, mut na, mut nj) = (0.0, 0.0, 0usize, 0usize);
+    for f in 1..n.saturating_sub(1) {
+        for &k in &body[1..] {
+            let (a, b, c) = (rel(f - 1, k), rel(f, k), rel(f + 1, k));
+            acc += norm([
+                c[0] - 2.0 * b[0] + a[0],
+                c[1] - 2.0 * b[1] + a[1],
+                c[2] - 2.0 * b[2] + a[2],
+            ]) * fps
+                * fps;
+            na += 1;
+            if f + 2 < n {
+                let d = rel(f + 2, k);
+                jerk += norm([
+                    d[0] - 3.0 * c[0] + 3.0 * b[0] - a[0],
+                    d[1] - 3.0 * c[1] + 3.0 * b[1] - a[1],
+                    d[2] - 3.0 * c[2] + 3.0 * b[2] - a[2],
+                ]) * fps
+                    * fps
+                    * fps;
+                nj += 1;
+            }
+        }
+    }
+    // Foot skating: ankles' horizontal speed while near the clip's floor.
+    let (mut skate, mut ns) = (0.0, 0usize);
+    for &ankle in &[7usize, 8] {
+        let floor = (0..n)
+            .map(|f| p[f * j + ankle][1])
+            .fold(f64::INFINITY, f64::min);
+        for f in 1..n {
+            let (a, b) = (p[(f - 1) * j + ankle], p[f * j + ankle]);
+            if b[1] < floor + 0.03 {
+                skate += ((b[0] - a[0]).powi(2) + (b[2] - a[2]).powi(2)).sqrt() * fps;
+                ns += 1;
+            }
+        }
+    }
+    let win = fps.round().max(2.0) as usize;
+    let mut window_speed = Vec::new();
+    let mut st = 0;
+    while st + win <= n {
+        let (mut s, mut c) = (0.0, 0usize);
+        for f in st + 1..st + win {
+            for &k in &body[1..] {
+                let (a, b) = (rel(f - 1, k), rel(f, k));
+                s += norm([b[0] - a[0], b[1] - a[1], b[2] - a[2]]) * fps;
+                c += 1;
+            }
+        }
+        window_speed.push(s / c.max(1) as f64);
+        st += win;
+    }
+    let frames = tokens.len() / fl;
+    let mut lda_windows = Vec::new();
+    let mut st = 0;
+    while st + JUDGE_FRAMES <= frames {
+        lda_windows.push(window_features(
+            &tokens[st * fl..(st + JUDGE_FRAMES) * fl],
+            fl,
+            vocab.bins,
+        ));
+        st += JUDGE_FRAMES;
+    }
+    Ok(ClipStats {
+        kinetic: kinetic_features(&p, j, fps),
+        geometric: geometric_features(&p, j),
+        accel: acc / na.max(1) as f64,
+        jerk: jerk / nj.max(1) as f64,
+        skate: skate / ns.max(1) as f64,
+        window_speed,
+        lda_windows,
+    })
+}
+
+/// Mean pairwise Euclidean distance of feature rows standardised by the
+/// reference set's mean and spread.
+fn diversity(rows: &[Vec<f64>], reference: &[Vec<f64>]) -> f64 {
+    let d = match reference.first() {
+        Some(r) => r.len(),
+        None => return 0.0,
+    };
+    let n = reference.len() as f64;
+    let mean: Vec<f64> = (0..d)
+        .map(|k| reference.iter().map(|r| r[k]).sum::<f64>() / n)
+        .collect();
+    let sd: Vec<f64> = (0..d)
+        .map(|k| {
+            let v = reference
+                .iter()
+                .map(|r| (r[k] - mean[k]).powi(2))
+                .sum::<f64>()
+                / n;
+            if v > 1e-24 {
+                v.sqrt()
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let z: Vec<Vec<f64>> = rows
+        .iter()
+        .map(|r| (0..d).map(|k| (r[k] - mean[k]) / sd[k]).collect())
+        .collect();
+    let (mut s, mut c) = (0.0, 0usize);
+    for i in 0..z.len() {
+        for k in i + 1..z.len() {
+            s += z[i]
+                .iter()
+                .zip(&z[k])
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            c += 1;
+        }
+    }
+    s / c.max(1) as f64
+}
+
+/// A real clip of the folder: its name, labels and tokens.
+struct RealClip {
+    labels: Labels,
+    tokens: Vec<u32>,
+}
+
+fn mean(x: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = x.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    s / n.max(1) as f64
+}
+
+/// Runs the evaluation; `say` receives progress lines (skipped labels,
+/// unreadable files).
+pub fn eval_generate(
+    model: &MotionModel,
+    data: &Path,
+    o: &GenOptions,
+    say: &mut dyn FnMut(String),
+) -> anyhow::Result<Vec<GenRow>> {
+    let vocab = model.vocabulary().clone();
+    let fl = vocab.frame_len();
+    let kind = &o.label_kind;
+    if !model.cond_kinds().contains(kind) {
+        anyhow::bail!(
+            "labels: the model is not conditioned on {kind:?} (it takes: {})",
+            model.cond_kinds().join(", ")
+        );
+    }
+    let known = vocab.labels.get(kind).cloned().unwrap_or_default();
+    // Read, tokenize and split like the trainer.
+    let mut clips: Vec<(String, RealClip)> = Vec::new();
+    for f in crate::data::files_with_ext(data, &["pkl", "npz", "bvh"]) {
+        match read_path(&f, &ReadOptions::default()) {
+            Ok(l) => {
+                let mut m = l.motion;
+                if m.labels.is_empty() {
+                    m.labels = from_name(&m.name);
+                }
+                let tokens = vocab.prepare(&m).and_then(|p| vocab.encode_motion(&p));
+                match tokens {
+                    Ok(t) if !t.is_empty() => clips.push((
+                        sha256_hex(m.name.as_bytes()),
+                        RealClip {
+                            labels: m.labels,
+                            tokens: t,
+                        },
+                    )),
+                    Ok(_) => {}
+                    Err(e) => say(format!("skipping {}: {e}", f.display())),
+                }
+            }
+            Err(e) => say(format!("skipping {}: {e}", f.display())),
+        }
+    }
+    if clips.is_empty() {
+        anyhow::bail!("data: no readable motion under {}", data.display());
+    }
+    clips.sort_by(|a, b| a.0.cmp(&b.0));
+    let n_val = crate::data::held_out_count(clips.len(), o.val_fraction);
+    let (val, train): (Vec<_>, Vec<_>) =
+        clips.into_iter().enumerate().partition(|(i, _)| *i < n_val);
+    let val: Vec<RealClip> = val.into_iter().map(|(_, c)| c.1).collect();
+    let train: Vec<RealClip> = train.into_iter().map(|(_, c)| c.1).collect();
+    let seg = (o.seconds * vocab.fps).round().max(4.0) as usize;
+    let segments = |cs: &[RealClip]| -> Vec<(String, Vec<u32>)> {
+        let mut out = Vec::new();
+        for c in cs {
+            let Some(v) = c.labels.get(kind) else {
+                continue;
+            };
+            let n = c.tokens.len() / fl;
+            if n < seg {
+                out.push((v.clone(), c.tokens.clone()));
+                continue;
+            }
+            let mut st = 0;
+            while st + seg <= n {
+                out.push((v.clone(), c.tokens[st * fl..(st + seg) * fl].to_vec()));
+                st += seg;
+            }
+        }
+        out
+    };
+    let val_segs = segments(&val);
+    let train_segs = segments(&train);
+    // The labels to generate: known to the model, present in held-out clips.
+    let mut values: Vec<String> = val_segs
+        .iter()
+        .map(|s| s.0.clone())
+        .filter(|v| known.contains(v))
+        .collect();
+    values.sort();
+    values.dedup();
+    for v in val_segs.iter().map(|s| &s.0) {
+        if !known.contains(v) {
+            say(format!("label {kind}={v}: unknown to the model, skipped"));
+        }
+    }
+    let all_values: Vec<String> = known.iter().cloned().collect();
+    if values.is_empty() {
+        anyhow::bail!("data: no held-out clip carries a {kind} the model knows");
+    }
+    let stats = |segs: &[(String, Vec<u32>)]| -> anyhow::Result<Vec<(String, ClipStats)>> {
+        segs.iter()
+            .filter(|s| values.contains(&s.0))
+            .map(|(v, t)| {
+                clip_stats(&vocab, t)
+                    .map(|s| (v.clone(), s))
+                    .map_err(|e| anyhow::anyhow!("{e}"))
+            })
+            .collect()
+    };
+    let real = stats(&val_segs)?;
+    let real_train = stats(&train_segs)?;
+    // The conditioning judge: LDA on real training windows only.
+    let (mut x, mut y) = (Vec::new(), Vec::new());
+    for (v, s) in &real_train {
+        if let Some(c) = all_values.iter().position(|a| a == v) {
+            for w in &s.lda_windows {
+                x.push(w.clone());
+                y.push(c);
+            }
+        }
+    }
+    let judge = Lda::fit(&x, &y, all_values.len(), 0.1);
+    let judge_acc = |rows: &[(String, &ClipStats)]| -> f64 {
+        let Some(j) = &judge else { return 0.0 };
+        let (mut hit, mut n) = (0usize, 0usize);
+        for (v, s) in rows {
+            for w in &s.lda_windows {
+                n += 1;
+                hit += (all_values.get(j.predict(w)) == Some(v)) as usize;
+            }
+        }
+        hit as f64 / n.max(1) as f64
+    };
+    let real_refs: Vec<(String, &ClipStats)> = real.iter().map(|(v, s)| (v.clone(), s)).collect();
+    let cond_acc_real = judge_acc(&real_refs);
+    let rk: Vec<Vec<f64>> = real.iter().map(|r| r.1.kinetic.clone()).collect();
+    let rg: Vec<Vec<f64>> = real.iter().map(|r| r.1.geometric.clone()).collect();
+    let tk: Vec<Vec<f64>> = real_train.iter().map(|r| r.1.kinetic.clone()).collect();
+    let tg: Vec<Vec<f64>> = real_train.iter().map(|r| r.1.geometric.clone()).collect();
+    let real_speed = mean(real.iter().flat_map(|r| r.1.window_speed.iter().copied()));
+    let real_accel = mean(real.iter().map(|r| r.1.accel));
+    let real_jerk = mean(real.iter().map(|r| r.1.jerk));
+    let real_skate = mean(real.iter().map(|r| r.1.skate));
+    let mut rows = Vec::new();
+    for sampling in &o.samplings {
+        let t0 = std::time::Instant::now();
+        let mut gen: Vec<(String, ClipStats)> = Vec::new();
+        for v in &values {
+            let mut labels = Labels::new();
+            labels.insert(kind.clone(), v.clone());
+            for i in 0..o.per_label {
+                let mut s = sampling.clone();
+                s.seed = sampling.seed.wrapping_add(i as u64);
+                let mut g = model.generator(&labels, &[], s)?;
+                let mut toks = Vec::with_capacity(seg * fl);
+                let free = vec![None; fl];
+                for _ in 0..seg {
+                    toks.extend(g.next_frame(&free)?);
+                }
+                gen.push((
+                    v.clone(),
+                    clip_stats(&vocab, &toks).map_err(|e| anyhow::anyhow!("{e}"))?,
+                ));
+            }
+        }
+        let secs = t0.elapsed().as_secs_f64() / gen.len().max(1) as f64;
+        let gk: Vec<Vec<f64>> = gen.iter().map(|r| r.1.kinetic.clone()).collect();
+        let gg: Vec<Vec<f64>> = gen.iter().map(|r| r.1.geometric.clone()).collect();
+        let frozen = {
+            let w: Vec<f64> = gen
+                .iter()
+                .flat_map(|r| r.1.window_speed.iter().copied())
+                .collect();
+            w.iter().filter(|&&s| s < 0.1 * real_speed).count() as f64 / w.len().max(1) as f64
+        };
+        let refs: Vec<(String, &ClipStats)> = gen.iter().map(|(v, s)| (v.clone(), s)).collect();
+        rows.push(GenRow {
+            label_kind: kind.clone(),
+            sampling: sampling_name(sampling),
+            labels: values.len(),
+            clips: gen.len(),
+            fid_k: fid(&rk, &gk),
+            fid_g: fid(&rg, &gg),
+            fid_k_real: fid(&rk, &tk),
+            fid_g_real: fid(&rg, &tg),
+            accel_ratio: mean(gen.iter().map(|r| r.1.accel)) / real_accel.max(1e-12),
+            jerk_ratio: mean(gen.iter().map(|r| r.1.jerk)) / real_jerk.max(1e-12),
+            skate_ratio: mean(gen.iter().map(|r| r.1.skate)) / real_skate.max(1e-12),
+            frozen,
+            diversity: diversity(&gk, &rk),
+            diversity_real: diversity(&rk, &rk),
+            cond_acc: judge_acc(&refs),
+            cond_acc_real,
+            seconds_per_clip: secs,
+        });
+    }
+    Ok(rows)
+}
