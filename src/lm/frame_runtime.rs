@@ -145,6 +145,15 @@ impl FrameSession {
         &self.manifest.config
     }
 
+    /// Fresh run states for the global and local plans (one pair per
+    /// generator: their buffers are reused from step to step).
+    fn states(&self) -> Result<(TypedSimpleState, TypedSimpleState), LmError> {
+        Ok((
+            self.global.spawn().map_err(rt)?,
+            self.local.spawn().map_err(rt)?,
+        ))
+    }
+
     fn new_global_cache(&self) -> Cache {
         let c = self.config();
         Cache::new(
@@ -169,6 +178,7 @@ impl FrameSession {
     /// value tokens after `p1`. Returns the state and the class logits.
     fn global_step(
         &self,
+        st: &mut TypedSimpleState,
         cache: &mut Cache,
         cond: &[f32],
         frame: Option<(&[u32], Option<&[u32]>)>,
@@ -203,7 +213,7 @@ impl FrameSession {
         );
         inputs.push(cache.bias().into_tvalue());
         cache.inputs(&mut inputs);
-        let out = self.global.run(inputs).map_err(rt)?;
+        let out = st.run(inputs).map_err(rt)?;
         let nk = c.classes.len();
         cache.push(&out[1 + nk..])?;
         let flat = |t: &TValue| -> Result<Vec<f32>, LmError> { Ok(floats(t)?.to_vec()) };
@@ -215,6 +225,7 @@ impl FrameSession {
     /// One local step at slot `cache.len`: change and absolute logits.
     fn local_step(
         &self,
+        st: &mut TypedSimpleState,
         cache: &mut Cache,
         ctx: &[f32],
         inp: u32,
@@ -237,7 +248,7 @@ impl FrameSession {
         }
         inputs.push(cache.bias().into_tvalue());
         cache.inputs(&mut inputs);
-        let out = self.local.run(inputs).map_err(rt)?;
+        let out = st.run(inputs).map_err(rt)?;
         cache.push(&out[2..])?;
         Ok((floats(&out[0])?.to_vec(), floats(&out[1])?.to_vec()))
     }
@@ -295,8 +306,9 @@ impl FrameSession {
                 ),
             ));
         }
+        let (mut gs, mut ls) = self.states()?;
         let mut cache = self.new_global_cache();
-        let (mut h, _) = self.global_step(&mut cache, cond, None)?;
+        let (mut h, _) = self.global_step(&mut gs, &mut cache, cond, None)?;
         let mut out = Vec::with_capacity(frames.len());
         for (f, frame) in frames.iter().enumerate() {
             let p1 = (f > 0).then(|| frames[f - 1].as_slice());
@@ -306,13 +318,15 @@ impl FrameSession {
             let (mut rels, mut abss) = (Vec::new(), Vec::new());
             let mut inp = c.start();
             for s in 0..c.slots {
-                let (r, a) = self.local_step(&mut local, &h, inp, vel[s], prev[s])?;
+                let (r, a) = self.local_step(&mut ls, &mut local, &h, inp, vel[s], prev[s])?;
                 rels.extend(r);
                 abss.extend(a);
                 inp = c.change(p1.map(|p| p[s]), frame[s]);
             }
             out.push((rels, abss));
-            h = self.global_step(&mut cache, cond, Some((frame, p1)))?.0;
+            h = self
+                .global_step(&mut gs, &mut cache, cond, Some((frame, p1)))?
+                .0;
         }
         Ok(out)
     }
@@ -328,13 +342,14 @@ impl FrameSession {
             return Err(LmError::invalid("request", "motion", "no whole frame"));
         }
         let cond = self.cond(&Labels::new())?;
+        let (mut gs, _) = self.states()?;
         let mut cache = self.new_global_cache();
-        self.global_step(&mut cache, &cond, None)?;
+        self.global_step(&mut gs, &mut cache, &cond, None)?;
         let mut sums: Vec<Vec<f32>> = c.classes.iter().map(|(_, v)| vec![0.0; v.len()]).collect();
         for f in 0..n {
             let frame = &values[f * s..(f + 1) * s];
             let p1 = (f > 0).then(|| &values[(f - 1) * s..f * s]);
-            let (_, cls) = self.global_step(&mut cache, &cond, Some((frame, p1)))?;
+            let (_, cls) = self.global_step(&mut gs, &mut cache, &cond, Some((frame, p1)))?;
             for (acc, x) in sums.iter_mut().zip(cls) {
                 for (a, b) in acc.iter_mut().zip(x) {
                     *a += b / n as f32;
@@ -349,8 +364,14 @@ impl FrameSession {
 /// global window, the last two frames and the random state.
 pub struct FrameGenerator {
     session: Arc<FrameSession>,
+    gstate: TypedSimpleState,
+    lstate: TypedSimpleState,
     cond: Vec<f32>,
     global: Cache,
+    /// The next window's cache (the conditioning and the frames that will
+    /// be kept at the next slide), filled one frame at a time while the
+    /// current window decodes, so a slide costs no burst of work.
+    next: Option<Cache>,
     /// Frames in the global cache (after the conditioning row).
     window: Vec<Vec<u32>>,
     /// The frame before the window's first one, if any (its change codes).
@@ -392,10 +413,14 @@ impl FrameGenerator {
         }
         let keep = (c.max_frames / 2).max(1).min(frames.len());
         let global = session.new_global_cache();
+        let (gstate, lstate) = session.states()?;
         let mut g = FrameGenerator {
             session,
+            gstate,
+            lstate,
             cond,
             global,
+            next: None,
             window: frames[frames.len() - keep..].to_vec(),
             before: (frames.len() > keep).then(|| frames[frames.len() - keep - 1].clone()),
             h: Vec::new(),
@@ -411,8 +436,9 @@ impl FrameGenerator {
     /// cache.
     fn encode_window(&mut self) -> Result<(), LmError> {
         let s = self.session.clone();
+        self.next = None;
         self.global = s.new_global_cache();
-        let (h, _) = s.global_step(&mut self.global, &self.cond, None)?;
+        let (h, _) = s.global_step(&mut self.gstate, &mut self.global, &self.cond, None)?;
         self.h = h;
         for i in 0..self.window.len() {
             let p1 = if i == 0 {
@@ -420,8 +446,12 @@ impl FrameGenerator {
             } else {
                 Some(self.window[i - 1].as_slice())
             };
-            let (h, _) =
-                s.global_step(&mut self.global, &self.cond, Some((&self.window[i], p1)))?;
+            let (h, _) = s.global_step(
+                &mut self.gstate,
+                &mut self.global,
+                &self.cond,
+                Some((&self.window[i], p1)),
+            )?;
             self.h = h;
         }
         Ok(())
@@ -458,7 +488,8 @@ impl FrameGenerator {
         let mut frame = Vec::with_capacity(fl);
         let mut inp = c.start();
         for s in 0..c.slots {
-            let (rel, abs) = session.local_step(&mut local, &self.h, inp, vel[s], prev[s])?;
+            let (rel, abs) =
+                session.local_step(&mut self.lstate, &mut local, &self.h, inp, vel[s], prev[s])?;
             let tok = match forced[s] {
                 Some(t) if (t as usize) < c.bins => t,
                 Some(t) => {
@@ -473,17 +504,42 @@ impl FrameGenerator {
             inp = c.change(p1.as_ref().map(|p| p[s]), tok);
             frame.push(tok);
         }
-        // The global window: slide by half when full, then feed the frame.
-        if self.window.len() >= c.max_frames {
-            let keep = (c.max_frames / 2).max(1);
+        // The global window: when full, keep the last half, whose cache
+        // (`next`) was filled as those frames came; then feed the frame.
+        let m = c.max_frames;
+        let keep = (m / 2).max(1);
+        if self.window.len() >= m {
             let cut = self.window.len() - keep;
             self.before = Some(self.window[cut - 1].clone());
             self.window.drain(..cut);
-            self.encode_window()?;
+            match self.next.take() {
+                Some(n) if n.len == 1 + keep => self.global = n,
+                _ => self.encode_window()?,
+            }
         }
-        let (h, _) =
-            session.global_step(&mut self.global, &self.cond, Some((&frame, p1.as_deref())))?;
+        let (h, _) = session.global_step(
+            &mut self.gstate,
+            &mut self.global,
+            &self.cond,
+            Some((&frame, p1.as_deref())),
+        )?;
         self.h = h;
+        let i = self.window.len();
+        if i >= m - keep {
+            if i == m - keep {
+                let mut n = session.new_global_cache();
+                session.global_step(&mut self.gstate, &mut n, &self.cond, None)?;
+                self.next = Some(n);
+            }
+            if let Some(n) = self.next.as_mut() {
+                session.global_step(
+                    &mut self.gstate,
+                    n,
+                    &self.cond,
+                    Some((&frame, p1.as_deref())),
+                )?;
+            }
+        }
         self.window.push(frame.clone());
         frame.push(session.manifest.vocabulary.sep());
         self.produced += 1;
