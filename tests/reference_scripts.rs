@@ -78,3 +78,92 @@ fn music_features_agree_with_librosa() {
         run_script("check_audio_librosa.py", Some("music"));
     }
 }
+
+/// The frame model's two step graphs in onnxruntime, driven by the Python
+/// script's own cache bookkeeping, against choreo's tract runtime.
+#[cfg(feature = "train")]
+#[test]
+fn frame_model_runtime_agrees_with_onnxruntime() {
+    use choreo::lm::frame::FrameConfig;
+    use choreo::lm::frame_runtime::FrameSession;
+    use choreo::motion::Labels;
+    use choreo::tokenize::vocab::Vocabulary;
+    use choreo::train::frame::FrameNet;
+    if !python_with("numpy, onnxruntime") {
+        return;
+    }
+    let mut labels = std::collections::BTreeMap::new();
+    labels.insert(
+        "style".to_string(),
+        ["happy", "sad"].iter().map(|s| s.to_string()).collect(),
+    );
+    let v = Vocabulary::new(labels);
+    let cfg = FrameConfig {
+        bins: v.bins,
+        slots: v.frame_len() - 1,
+        radius: 10,
+        d_emb: 8,
+        d_global: 32,
+        global_layers: 2,
+        global_heads: 4,
+        d_local: 16,
+        local_layers: 2,
+        local_heads: 2,
+        max_frames: 12,
+        vocab_size: v.size(),
+        cond_kinds: vec!["style".into()],
+        classes: vec![("style".into(), vec!["happy".into(), "sad".into()])],
+        ln_eps: 1e-5,
+    };
+    let net = FrameNet::new(cfg, &candle_core::Device::Cpu).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    choreo::train::frame_export::export(
+        &net,
+        &v,
+        Default::default(),
+        Default::default(),
+        serde_json::json!({}),
+        dir.path(),
+    )
+    .unwrap();
+    // Frames that move: small and large changes, escapes included.
+    let frames: Vec<Vec<u32>> = (0..8u32)
+        .map(|f| {
+            (0..42u32)
+                .map(|s| (100 + s * 5 + f * (1 + s % 7) * 3) % 360)
+                .collect()
+        })
+        .collect();
+    let session = FrameSession::load(dir.path()).unwrap();
+    let mut l = Labels::new();
+    l.insert("style".into(), "sad".into());
+    let cond = session.cond(&l).unwrap();
+    let out = session.teacher_forced(&cond, &frames).unwrap();
+    let dump = serde_json::json!({
+        "frames": frames,
+        "cond": cond,
+        "rel": out.iter().map(|x| &x.0).collect::<Vec<_>>(),
+        "abs": out.iter().map(|x| &x.1).collect::<Vec<_>>(),
+    });
+    let path = dir.path().join("dump.json");
+    std::fs::write(&path, dump.to_string()).unwrap();
+    let o = Command::new("python3")
+        .arg(format!(
+            "{}/scripts/check_frame_onnxruntime.py",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .arg(dir.path())
+        .arg(&path)
+        .output()
+        .expect("python3 runs");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("{text}");
+    assert!(
+        o.status.success(),
+        "check_frame_onnxruntime.py failed:\n{text}"
+    );
+}

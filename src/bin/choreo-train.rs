@@ -160,8 +160,10 @@ struct FrameArgs {
     /// Label kinds to learn class heads for (none = no heads).
     #[arg(long = "classify")]
     classify: Vec<String>,
-    #[arg(long, default_value_t = 4000)]
-    steps: usize,
+    /// Total steps (default 4000). With --resume: a new total, and the
+    /// cosine schedule is recomputed over it.
+    #[arg(long)]
+    steps: Option<usize>,
     #[arg(long, default_value_t = 8)]
     batch: usize,
     #[arg(long, default_value_t = 1e-3)]
@@ -476,12 +478,13 @@ fn frame(a: FrameArgs) -> Result<()> {
             .cloned()
             .collect(),
         classes: class_values(&vocab, &a.classify)?,
+        resume_steps: a.steps,
         settings: RunSettings {
-            steps: a.steps,
+            steps: a.steps.unwrap_or(4000),
             batch: a.batch,
             lr: a.lr,
             min_lr_ratio: 0.1,
-            warmup: (a.steps / 50).max(1),
+            warmup: (a.steps.unwrap_or(4000) / 50).max(1),
             weight_decay: 0.05,
             dropout: 0.0,
             eval_every: a.eval_every.max(1),

@@ -597,6 +597,9 @@ pub struct FrameRun {
     pub cond_kinds: Vec<String>,
     pub classes: Vec<(String, Vec<String>)>,
     pub settings: RunSettings,
+    /// On resume: a new total step count (the cosine schedule is recomputed
+    /// over it, so a run can be shortened to anneal now, or extended).
+    pub resume_steps: Option<usize>,
 }
 
 /// Trains (or resumes) a frame model on `corpus`, checkpointing into
@@ -606,7 +609,12 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
     let dev = super::device();
     let fl = vocab.frame_len();
     let (mut st, net, mut opt) = if run.resume {
-        load(&run.out, &dev)?
+        let (mut st, net, opt) = load(&run.out, &dev)?;
+        if let Some(n) = run.resume_steps {
+            st.settings.steps = n;
+        }
+        st.settings.max_seconds = run.settings.max_seconds;
+        (st, net, opt)
     } else {
         let cfg = FrameConfig {
             bins: vocab.bins,
