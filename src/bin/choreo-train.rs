@@ -462,22 +462,23 @@ fn frame(a: FrameArgs) -> Result<()> {
     let run = tr::frame::FrameRun {
         out: a.out.clone(),
         resume: a.resume,
-        radius: a.radius,
-        d_emb: a.d_emb,
-        d_global: a.d_global,
-        global_layers: a.global_layers,
-        global_heads: a.global_heads,
-        d_local: a.d_local,
-        local_layers: a.local_layers,
-        local_heads: a.local_heads,
-        frames: a.frames,
-        cond_kinds: a
-            .cond
-            .iter()
-            .filter(|k| vocab.labels.contains_key(*k))
-            .cloned()
-            .collect(),
-        classes: class_values(&vocab, &a.classify)?,
+        config: choreo::lm::frame::FrameConfig {
+            bins: vocab.bins,
+            slots: vocab.frame_len() - 1,
+            radius: a.radius,
+            d_emb: a.d_emb,
+            d_global: a.d_global,
+            global_layers: a.global_layers,
+            global_heads: a.global_heads,
+            d_local: a.d_local,
+            local_layers: a.local_layers,
+            local_heads: a.local_heads,
+            max_frames: a.frames,
+            vocab_size: vocab.size(),
+            cond_kinds: known_kinds(&vocab, &a.cond),
+            classes: class_values(&vocab, &a.classify)?,
+            ln_eps: 1e-5,
+        },
         resume_steps: a.steps,
         settings: RunSettings {
             steps: a.steps.unwrap_or(4000),
@@ -829,12 +830,7 @@ fn train(a: TrainArgs) -> Result<()> {
                 d_ff: 4 * a.d_model,
                 max_frames: a.frames,
                 frame_len: fl,
-                cond_kinds: a
-                    .cond
-                    .iter()
-                    .filter(|k| vocab.labels.contains_key(*k))
-                    .cloned()
-                    .collect(),
+                cond_kinds: known_kinds(&vocab, &a.cond),
                 classes: class_values(&vocab, &a.classify)?,
                 positions: match a.positions {
                     Positions::Absolute => PosScheme::Absolute,
@@ -1024,6 +1020,15 @@ fn new_state(
         data: corpus.info.clone(),
         metrics: BTreeMap::new(),
     }
+}
+
+/// The label kinds asked for that the vocabulary has values of.
+fn known_kinds(vocab: &choreo::tokenize::vocab::Vocabulary, kinds: &[String]) -> Vec<String> {
+    kinds
+        .iter()
+        .filter(|k| vocab.labels.contains_key(*k))
+        .cloned()
+        .collect()
 }
 
 fn class_values(

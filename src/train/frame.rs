@@ -370,17 +370,8 @@ pub fn losses(net: &FrameNet, b: &FrameBatch) -> Result<FrameLosses> {
                 hits.push((0, 0));
                 continue;
             };
-            let x = lg.index_select(rows, 0)?;
-            let pred = x.argmax(D::Minus1)?.to_vec1::<u32>()?;
-            let truth = idx.to_vec1::<u32>()?;
-            hits.push((
-                pred.iter().zip(&truth).filter(|(a, b)| a == b).count(),
-                truth.len(),
-            ));
-            let l = candle_nn::ops::log_softmax(&x, D::Minus1)?
-                .gather(&idx.unsqueeze(1)?, 1)?
-                .mean_all()?
-                .neg()?;
+            let (l, h) = super::class_loss(&lg.index_select(rows, 0)?, idx)?;
+            hits.push(h);
             cls = Some(match cls {
                 Some(a) => (a + l)?,
                 None => l,
@@ -580,26 +571,18 @@ pub fn load(dir: &std::path::Path, dev: &Device) -> Result<(FrameState, FrameNet
     Ok((st, net, opt))
 }
 
-/// Sizes and schedule of a frame-model run (the trainer's flags).
+/// A frame-model run (the trainer's flags): where, the architecture (its
+/// `bins`, `slots` and `vocab_size` are taken from the vocabulary) and the
+/// schedule.
 #[derive(Clone, Debug)]
 pub struct FrameRun {
     pub out: std::path::PathBuf,
     pub resume: bool,
-    pub radius: usize,
-    pub d_emb: usize,
-    pub d_global: usize,
-    pub global_layers: usize,
-    pub global_heads: usize,
-    pub d_local: usize,
-    pub local_layers: usize,
-    pub local_heads: usize,
-    pub frames: usize,
-    pub cond_kinds: Vec<String>,
-    pub classes: Vec<(String, Vec<String>)>,
-    pub settings: RunSettings,
     /// On resume: a new total step count (the cosine schedule is recomputed
     /// over it, so a run can be shortened to anneal now, or extended).
     pub resume_steps: Option<usize>,
+    pub config: FrameConfig,
+    pub settings: RunSettings,
 }
 
 /// Trains (or resumes) a frame model on `corpus`, checkpointing into
@@ -619,19 +602,8 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
         let cfg = FrameConfig {
             bins: vocab.bins,
             slots: fl - 1,
-            radius: run.radius,
-            d_emb: run.d_emb,
-            d_global: run.d_global,
-            global_layers: run.global_layers,
-            global_heads: run.global_heads,
-            d_local: run.d_local,
-            local_layers: run.local_layers,
-            local_heads: run.local_heads,
-            max_frames: run.frames,
             vocab_size: vocab.size(),
-            cond_kinds: run.cond_kinds.clone(),
-            classes: run.classes.clone(),
-            ln_eps: 1e-5,
+            ..run.config.clone()
         };
         cfg.validate("--frame flags")
             .map_err(|e| anyhow::anyhow!("{e}"))?;

@@ -179,22 +179,27 @@ pub fn losses(
             continue;
         };
         let x = cls[c].reshape((n, values.len()))?.index_select(rows, 0)?;
-        let pred = x.argmax(D::Minus1)?.to_vec1::<u32>()?;
-        let truth = idx.to_vec1::<u32>()?;
-        hits.push((
-            pred.iter().zip(&truth).filter(|(a, b)| a == b).count(),
-            truth.len(),
-        ));
-        let l = candle_nn::ops::log_softmax(&x, D::Minus1)?
-            .gather(&idx.unsqueeze(1)?, 1)?
-            .mean_all()?
-            .neg()?;
+        let (l, h) = class_loss(&x, idx)?;
+        hits.push(h);
         cls_loss = Some(match cls_loss {
             Some(a) => (a + l)?,
             None => l,
         });
     }
     Ok((lm, cls_loss, hits))
+}
+
+/// Mean cross-entropy of class logits `x: [rows, classes]` against `idx`,
+/// and (hits, rows) of their argmax.
+pub fn class_loss(x: &Tensor, idx: &Tensor) -> Result<(Tensor, (usize, usize))> {
+    let pred = x.argmax(D::Minus1)?.to_vec1::<u32>()?;
+    let truth = idx.to_vec1::<u32>()?;
+    let hits = pred.iter().zip(&truth).filter(|(a, b)| a == b).count();
+    let l = candle_nn::ops::log_softmax(x, D::Minus1)?
+        .gather(&idx.unsqueeze(1)?, 1)?
+        .mean_all()?
+        .neg()?;
+    Ok((l, (hits, truth.len())))
 }
 
 /// Held-out figures over fixed windows: mean loss per target token,
