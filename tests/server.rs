@@ -336,6 +336,24 @@ async fn a_full_worker_pool_says_busy() {
             .unwrap();
     assert_eq!(status, 429, "{err}");
     assert_eq!(err["error"]["code"], "resource_exhausted");
+    // A 429 says when to come back.
+    let quick = json!({"motion": sine(2.0), "cutoff": 8}).to_string();
+    let head = tokio::task::spawn_blocking(move || {
+        raw(
+            h,
+            &format!(
+                "POST /v1/lowpass HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{quick}",
+                quick.len()
+            ),
+        )
+    })
+    .await
+    .unwrap();
+    assert!(head.starts_with("HTTP/1.1 429"), "{head}");
+    assert!(
+        head.to_ascii_lowercase().contains("\r\nretry-after: 1\r\n"),
+        "{head}"
+    );
     let (status, done) = first.await.unwrap();
     assert_eq!(status, 200, "{done}");
     assert_eq!(done["steps"], 3000);
@@ -1128,6 +1146,46 @@ async fn openapi_json_matches_the_router() {
             assert!(body["error"]["code"] == "not_found", "{m} {p}: {body}");
         }
     }
+    running.shutdown().await.unwrap();
+}
+
+/// One raw HTTP/1.1 exchange: the whole answer as text.
+fn raw(addr: SocketAddr, request: &str) -> String {
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.write_all(request.as_bytes()).unwrap();
+    let mut out = Vec::new();
+    s.read_to_end(&mut out).unwrap();
+    String::from_utf8_lossy(&out).to_string()
+}
+
+/// Unknown paths and wrong methods answer with the error table's JSON, and
+/// the bearer scheme is case-insensitive.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unknown_routes_and_methods_answer_json_and_bearer_is_case_insensitive() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = start(&config(dir.path(), vec![])).await.unwrap();
+    let h = running.http;
+    let (nf, wm, upper) = tokio::task::spawn_blocking(move || {
+        let nf = http(h, "GET", "/v1/nowhere", None);
+        let wm = raw(
+            h,
+            "PUT /v1/query HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Length: 0\r\n\r\n",
+        );
+        let upper = raw(
+            h,
+            &format!("DELETE /v1/motions/999999 HTTP/1.1\r\nHost: x\r\nConnection: close\r\nAuthorization: BEARER {TOKEN}\r\nContent-Length: 0\r\n\r\n"),
+        );
+        (nf, wm, upper)
+    })
+    .await
+    .unwrap();
+    assert_eq!(nf.0, 404);
+    assert_eq!(nf.1["error"]["code"], "not_found", "{}", nf.1);
+    assert!(wm.starts_with("HTTP/1.1 405"), "{wm}");
+    assert!(wm.contains("\"method_not_allowed\""), "{wm}");
+    assert!(wm.to_ascii_lowercase().contains("\r\nallow: post"), "{wm}");
+    // Authorised (the motion is missing), not refused.
+    assert!(upper.starts_with("HTTP/1.1 404"), "{upper}");
     running.shutdown().await.unwrap();
 }
 

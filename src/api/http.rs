@@ -72,8 +72,47 @@ impl IntoResponse for ApiError {
             }
             other => json!({"error": {"code": other.kind(), "reason": other.to_string()}}),
         };
-        (status, Json(body)).into_response()
+        let mut resp = (status, Json(body)).into_response();
+        if status == StatusCode::TOO_MANY_REQUESTS {
+            // Permits free within a request's time; one second is a fair
+            // first back-off.
+            resp.headers_mut().insert(
+                axum::http::header::RETRY_AFTER,
+                axum::http::HeaderValue::from_static("1"),
+            );
+        }
+        resp
     }
+}
+
+/// Unknown paths: the error table's JSON body, not an empty 404.
+async fn not_found(uri: axum::http::Uri) -> Response {
+    (
+        StatusCode::NOT_FOUND,
+        Json(json!({"error": {"code": "not_found", "reason": format!("no route {}", uri.path())}})),
+    )
+        .into_response()
+}
+
+/// A known path with the wrong method: 405 with a JSON body (axum's
+/// `Allow` header is kept).
+async fn method_json(req: axum::extract::Request, next: axum::middleware::Next) -> Response {
+    let method = req.method().clone();
+    let path = req.uri().path().to_string();
+    let resp = next.run(req).await;
+    if resp.status() != StatusCode::METHOD_NOT_ALLOWED {
+        return resp;
+    }
+    let allow = resp.headers().get(axum::http::header::ALLOW).cloned();
+    let mut out = (
+        StatusCode::METHOD_NOT_ALLOWED,
+        Json(json!({"error": {"code": "method_not_allowed", "reason": format!("{method} is not allowed on {path}")}})),
+    )
+        .into_response();
+    if let Some(a) = allow {
+        out.headers_mut().insert(axum::http::header::ALLOW, a);
+    }
+    out
 }
 
 fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ApiError> {
@@ -464,5 +503,7 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         )
         .layer(DefaultBodyLimit::max(max_body))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), track))
+        .fallback(not_found)
+        .layer(axum::middleware::from_fn(method_json))
         .with_state(state)
 }

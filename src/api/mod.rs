@@ -279,12 +279,11 @@ impl AppState {
                 "writes are switched off: start the server with --token (CHOREO_TOKEN)".into(),
             ));
         };
+        // The scheme is case-insensitive (RFC 9110 §11.1).
         let given = presented
-            .and_then(|h| {
-                h.strip_prefix("Bearer ")
-                    .or_else(|| h.strip_prefix("bearer "))
-            })
-            .map(str::trim);
+            .and_then(|h| h.split_once(' '))
+            .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+            .map(|(_, t)| t.trim());
         match given {
             None => Err(ApiError::Unauthenticated(
                 "this write needs the header `Authorization: Bearer <token>`".into(),
