@@ -451,19 +451,15 @@ pub fn train_step(
     let b = batch(c, &exs, dev)?;
     let l = losses(net, &b)?;
     let per_token = (&l.nats / (b.frames * c.slots) as f64)?;
-    let total_loss = match &l.cls {
-        Some(x) => (&per_token + (x * s.class_weight)?)?,
-        None => per_token,
-    };
     let nats = l.nats.to_scalar::<f32>()? as f64 / b.frames as f64;
-    if !nats.is_finite() {
-        bail!(
-            "training diverged: loss {nats} at step {} (lower --lr)",
-            opt.step
-        );
-    }
-    let grads = total_loss.backward()?;
-    opt.step(&net.params, &grads)?;
+    super::optimise(
+        &net.params,
+        opt,
+        &per_token,
+        l.cls.as_ref(),
+        s.class_weight,
+        nats,
+    )?;
     Ok((nats, b.frames))
 }
 

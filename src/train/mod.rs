@@ -324,20 +324,34 @@ pub fn train_step(
     let tokens: usize = exs.iter().map(|e| e.tokens.len()).sum();
     let b = data::batch(cfg, vocab, &exs, dev)?;
     let (lm, cls, _) = losses(model, &b, true)?;
-    let total = match &cls {
-        Some(c) => (&lm + (c * s.class_weight)?)?,
-        None => lm.clone(),
-    };
     let loss = lm.to_scalar::<f32>()? as f64;
-    if !loss.is_finite() {
+    optimise(&model.params, opt, &lm, cls.as_ref(), s.class_weight, loss)?;
+    Ok((loss, tokens))
+}
+
+/// One optimiser step on `lm` plus the weighted class loss; a non-finite
+/// `reported` loss stops the run instead.
+pub fn optimise(
+    params: &model::Params,
+    opt: &mut AdamW,
+    lm: &Tensor,
+    cls: Option<&Tensor>,
+    class_weight: f64,
+    reported: f64,
+) -> Result<()> {
+    if !reported.is_finite() {
         bail!(
-            "training diverged: loss {loss} at step {} (lower --lr)",
+            "training diverged: loss {reported} at step {} (lower --lr)",
             opt.step
         );
     }
+    let total = match cls {
+        Some(c) => (lm + (c * class_weight)?)?,
+        None => lm.clone(),
+    };
     let grads = total.backward()?;
-    opt.step(&model.params, &grads)?;
-    Ok((loss, tokens))
+    opt.step(params, &grads)?;
+    Ok(())
 }
 
 /// Cumulative frame counts for length-weighted sequence draws.
