@@ -1045,6 +1045,26 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
             .code(),
         tonic::Code::NotFound
     );
+    // Ids are never reused: after the newest motions are deleted, the next
+    // one gets a fresh id.
+    let newest = bvh_id.max(inline_id);
+    let mut again = choreo::api::grpc::motion_pb(&clip.cut(0, 120).unwrap());
+    again.name = "first two seconds".into();
+    let next_id = client
+        .ingest_motion(grpc_auth(
+            pb::IngestRequest {
+                motion: Some(pb::MotionSource {
+                    source: Some(pb::motion_source::Source::Motion(again)),
+                }),
+                labels: Default::default(),
+            },
+            TOKEN,
+        ))
+        .await
+        .unwrap()
+        .into_inner()
+        .motion_id;
+    assert!(next_id > newest, "id {next_id} reuses one up to {newest}");
     running.shutdown().await.unwrap();
 
     // Without a token, writes are switched off.

@@ -200,8 +200,8 @@ impl Store {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
         let labels = serde_json::to_string(&m.labels).unwrap_or_else(|_| "{}".into());
         let id: i64 = sqlx::query_scalar(
-            "INSERT INTO motions (source_path, content_hash, format, fps, frames, joints, skeleton, duration_s, labels)
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+            "INSERT INTO motions (id, source_path, content_hash, format, fps, frames, joints, skeleton, duration_s, labels)
+             VALUES ((SELECT last + 1 FROM motion_id_seq), ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
         )
         .bind(&m.source_path)
         .bind(&m.content_hash)
