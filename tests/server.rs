@@ -1199,6 +1199,18 @@ async fn unknown_routes_and_methods_answer_json_and_bearer_is_case_insensitive()
     })
     .await
     .unwrap();
+    // A misspelt field is refused and named, not ignored.
+    let typo = json!({"motion": {"id": 1}, "start": 3.0});
+    let (status, err) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&typo)))
+            .await
+            .unwrap();
+    assert_eq!(status, 400, "{err}");
+    assert_eq!(err["error"]["field"], "start", "{err}");
+    assert!(
+        err["error"]["reason"].as_str().unwrap().contains("start_s"),
+        "{err}"
+    );
     assert_eq!(nf.0, 404);
     assert_eq!(nf.1["error"]["code"], "not_found", "{}", nf.1);
     assert!(wm.starts_with("HTTP/1.1 405"), "{wm}");

@@ -21,6 +21,7 @@ pub use crate::motion::io::json::MotionJson;
 pub const OPENAPI: &str = include_str!("../../openapi.json");
 
 #[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct FileJson {
     #[serde(default)]
     pub name: String,
@@ -30,6 +31,7 @@ pub struct FileJson {
 /// Exactly one of `motion` (inline), `file` (an upload, base64) or `id` (a
 /// stored motion).
 #[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SourceJson {
     pub motion: Option<MotionJson>,
     pub file: Option<FileJson>,
@@ -116,11 +118,28 @@ async fn method_json(req: axum::extract::Request, next: axum::middleware::Next) 
 }
 
 fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ApiError> {
-    b.map(|Json(x)| x)
-        .map_err(|r| ApiError::invalid("body", r.body_text()))
+    b.map(|Json(x)| x).map_err(|r| {
+        let text = r.body_text();
+        // A misspelt field is named as the request spelt it ("start" for
+        // "start_s"), not passed over.
+        match text
+            .split_once("unknown field `")
+            .and_then(|(_, rest)| rest.split_once('`'))
+        {
+            Some((field, rest)) => ApiError::invalid(
+                field,
+                format!(
+                    "unknown field{}",
+                    rest.split(" at line").next().unwrap_or("")
+                ),
+            ),
+            None => ApiError::invalid("body", text),
+        }
+    })
 }
 
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct QueryBody {
     pub motion: Option<SourceJson>,
     #[serde(default)]
@@ -162,6 +181,7 @@ async fn query(
 }
 
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct InterpolateBody {
     pub input: Option<SourceJson>,
     pub target: Option<SourceJson>,
@@ -202,6 +222,7 @@ async fn interpolate(
 }
 
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct LowpassBody {
     pub motion: Option<SourceJson>,
     pub cutoff: usize,
@@ -217,6 +238,7 @@ async fn lowpass(
 }
 
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct KeyframesBody {
     pub motion: Option<SourceJson>,
     pub count: usize,
@@ -279,6 +301,7 @@ fn bearer(h: &HeaderMap) -> Option<&str> {
 }
 
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct IngestBody {
     pub motion: Option<SourceJson>,
     #[serde(default)]
@@ -354,6 +377,7 @@ async fn delete_motion(
 /// request gets the recommended setting (`lm::generate::RECOMMENDED`), with
 /// its own `top_k` / `top_p` where given; `"temperature": 0` is greedy.
 #[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SamplingJson {
     pub temperature: Option<f64>,
     pub top_k: Option<usize>,
@@ -382,6 +406,7 @@ impl SamplingJson {
 }
 
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct GenerateBody {
     #[serde(default)]
     pub labels: Labels,
@@ -421,6 +446,7 @@ async fn generate(
 }
 
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ClassifyBody {
     pub motion: Option<SourceJson>,
 }
