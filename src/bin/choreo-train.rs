@@ -548,87 +548,17 @@ fn export_frame(
     Ok(())
 }
 
-/// Per held-out corpus: the frame model's bits/frame beside the three
-/// baselines (fitted on all training sequences), as JSON rows.
+/// Prints the frame model's per-corpus table (one JSON line per row on
+/// standard error as it comes, then all of it with the run's metrics).
 fn print_frame_table(
     net: &tr::frame::FrameNet,
     vocab: &choreo::tokenize::vocab::Vocabulary,
     corpus: &Corpus,
     metrics: &BTreeMap<String, f64>,
 ) -> Result<()> {
-    let dev = tr::device();
-    let fl = vocab.frame_len();
-    let mut names: Vec<String> = corpus.val.iter().map(|s| s.corpus.clone()).collect();
-    names.sort();
-    names.dedup();
-    names.push("all".into());
-    let mut rows = Vec::new();
-    for name in names {
-        let val: Vec<data::Sequence> = corpus
-            .val
-            .iter()
-            .filter(|s| name == "all" || s.corpus == name)
-            .map(|s| data::Sequence {
-                name: s.name.clone(),
-                corpus: s.corpus.clone(),
-                labels: s.labels.clone(),
-                tokens: s.tokens.clone(),
-                mirrored: None,
-            })
-            .collect();
-        let ev = tr::frame::evaluate(net, vocab, &val, fl, usize::MAX, &dev)?;
-        // Table 4.8's baselines on windows of the model's context (the
-        // model's own accuracy is over the same held-out windows).
-        let cut = |seqs: &[data::Sequence]| -> Vec<(Vec<u32>, choreo::motion::Labels)> {
-            let w = net.cfg.max_frames;
-            let mut out = Vec::new();
-            for s in seqs {
-                let n = s.frames(fl);
-                let mut st = 0;
-                while st < n {
-                    let len = w.min(n - st);
-                    out.push((
-                        s.tokens[st * fl..(st + len) * fl].to_vec(),
-                        s.labels.clone(),
-                    ));
-                    st += len;
-                }
-            }
-            out
-        };
-        let (tw, vw) = (cut(&corpus.train), cut(&val));
-        let tr_refs: Vec<(&[u32], &choreo::motion::Labels)> =
-            tw.iter().map(|(t, l)| (t.as_slice(), l)).collect();
-        let va_refs: Vec<(&[u32], &choreo::motion::Labels)> =
-            vw.iter().map(|(t, l)| (t.as_slice(), l)).collect();
-        let classes: Vec<serde_json::Value> = net
-            .cfg
-            .classes
-            .iter()
-            .zip(&ev.accuracy)
-            .filter(|(_, (_, _, n))| *n > 0)
-            .map(|((k, values), (_, acc, n))| {
-                let (major, lda, _) = baselines::classification_baselines(
-                    &tr_refs, &va_refs, k, values, fl, vocab.bins,
-                );
-                serde_json::json!({"kind": k, "windows": n, "model": acc, "lda": lda, "majority": major})
-            })
-            .collect();
-        let (uni, slot) = baselines::unigram_losses(&corpus.train, &val, vocab.size(), fl);
-        let delta = baselines::delta_loss(&corpus.train, &val, vocab.size(), vocab.bins, fl);
-        let row = serde_json::json!({
-            "corpus": name,
-            "val_sequences": val.len(),
-            "val_frames": ev.frames,
-            "frame_model_bits_per_frame": ev.bits_per_frame,
-            "delta_bits_per_frame": bits_per_frame(delta, fl),
-            "slot_unigram_bits_per_frame": bits_per_frame(slot, fl),
-            "unigram_bits_per_frame": bits_per_frame(uni, fl),
-            "ratio_to_delta": ev.bits_per_frame / bits_per_frame(delta, fl),
-            "classification": classes,
-        });
-        eprintln!("{row}");
-        rows.push(row);
+    let rows = tr::frame::table(net, vocab, corpus)?;
+    for r in &rows {
+        eprintln!("{r}");
     }
     println!(
         "{}",

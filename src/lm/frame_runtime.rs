@@ -256,28 +256,8 @@ impl FrameSession {
     /// The conditioning row for `labels` (`<bos>` and one token per label).
     pub fn cond(&self, labels: &Labels) -> Result<Vec<f32>, LmError> {
         let c = self.config();
-        for k in labels.keys() {
-            if !c.cond_kinds.contains(k) {
-                return Err(LmError::invalid(
-                    "request",
-                    format!("labels.{k}"),
-                    format!(
-                        "the model is not conditioned on {k:?} (it takes: {})",
-                        c.cond_kinds.join(", ")
-                    ),
-                ));
-            }
-        }
-        let ids = self
-            .manifest
-            .vocabulary
-            .prefix(labels)
-            .map_err(|e| match e {
-                crate::motion::MotionError::Invalid { field, reason, .. } => {
-                    LmError::invalid("request", format!("labels ({field})"), reason)
-                }
-                other => LmError::Runtime(other.to_string()),
-            })?;
+        let ids =
+            super::generate::request_prefix(&self.manifest.vocabulary, &c.cond_kinds, labels)?;
         let mut row = vec![0f32; c.vocab_size];
         for id in ids {
             row[id as usize] = 1.0;

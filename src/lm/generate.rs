@@ -177,6 +177,71 @@ pub fn forced_frames(tokens: &[u32], slots: &[bool]) -> Vec<Vec<Option<u32>>> {
         .collect()
 }
 
+/// The conditioning prefix (`<bos>` + one token per label) of a request's
+/// labels; a kind the model is not conditioned on, or a value its
+/// vocabulary lacks, is an error naming it. Shared by both model kinds.
+pub fn request_prefix(
+    vocab: &Vocabulary,
+    cond_kinds: &[String],
+    labels: &Labels,
+) -> Result<Vec<u32>, LmError> {
+    if let Some(k) = labels.keys().find(|k| !cond_kinds.contains(k)) {
+        return Err(LmError::invalid(
+            "request",
+            format!("labels.{k}"),
+            format!(
+                "the model is not conditioned on {k:?} (it takes: {})",
+                cond_kinds.join(", ")
+            ),
+        ));
+    }
+    vocab.prefix(labels).map_err(|e| match e {
+        crate::motion::MotionError::Invalid { field, reason, .. } => {
+            LmError::invalid("request", format!("labels ({field})"), reason)
+        }
+        other => LmError::Runtime(other.to_string()),
+    })
+}
+
+/// Where a clip of `frames` frames is read for classification: windows of
+/// `w` frames overlapping by half, or `max_windows` of them spread evenly
+/// when there would be more. Shared by both model kinds.
+pub fn classify_starts(frames: usize, w: usize, max_windows: usize) -> Vec<usize> {
+    let hop = (w / 2).max(1);
+    let starts: Vec<usize> = (0..=frames - w).step_by(hop).collect();
+    if starts.len() <= max_windows.max(1) {
+        return starts;
+    }
+    let n = max_windows.max(1);
+    (0..n).map(|i| i * (frames - w) / (n - 1).max(1)).collect()
+}
+
+/// Adds `weight` × softmax(`logits`) to `acc`.
+pub fn add_softmax(acc: &mut [f64], logits: &[f32], weight: f64) {
+    let mx = logits.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+    let e: Vec<f64> = logits.iter().map(|&x| ((x - mx) as f64).exp()).collect();
+    let z: f64 = e.iter().sum();
+    for (a, p) in acc.iter_mut().zip(&e) {
+        *a += weight * p / z;
+    }
+}
+
+/// Class probabilities per kind, each sorted by probability.
+pub fn class_table(
+    classes: &[(String, Vec<String>)],
+    acc: Vec<Vec<f64>>,
+) -> Vec<(String, Vec<(String, f64)>)> {
+    classes
+        .iter()
+        .zip(acc)
+        .map(|((k, values), a)| {
+            let mut v: Vec<(String, f64)> = values.iter().cloned().zip(a).collect();
+            v.sort_by(|x, y| y.1.total_cmp(&x.1));
+            (k.clone(), v)
+        })
+        .collect()
+}
+
 /// A running generation: the model, the prefix, the frames in the window,
 /// the key/value cache and the random state.
 pub struct Generator {
@@ -208,24 +273,7 @@ impl Generator {
         sampling.validate()?;
         let m = &session.manifest;
         let cfg = &m.config;
-        for k in labels.keys() {
-            if !cfg.cond_kinds.contains(k) {
-                return Err(LmError::invalid(
-                    "request",
-                    format!("labels.{k}"),
-                    format!(
-                        "the model is not conditioned on {k:?} (it takes: {})",
-                        cfg.cond_kinds.join(", ")
-                    ),
-                ));
-            }
-        }
-        let prefix = m.vocabulary.prefix(labels).map_err(|e| match e {
-            crate::motion::MotionError::Invalid { field, reason, .. } => {
-                LmError::invalid("request", format!("labels ({field})"), reason)
-            }
-            other => LmError::Runtime(other.to_string()),
-        })?;
+        let prefix = request_prefix(&m.vocabulary, &cfg.cond_kinds, labels)?;
         let fl = cfg.frame_len;
         if seed_tokens.len() % fl != 0 {
             return Err(LmError::invalid("request", "seed", "not whole frames"));
@@ -412,12 +460,7 @@ pub fn classify(
         ));
     }
     let w = cfg.max_frames.min(frames);
-    let hop = (w / 2).max(1);
-    let mut starts: Vec<usize> = (0..=frames - w).step_by(hop).collect();
-    if starts.len() > max_windows.max(1) {
-        let n = max_windows.max(1);
-        starts = (0..n).map(|i| i * (frames - w) / (n - 1).max(1)).collect();
-    }
+    let starts = classify_starts(frames, w, max_windows);
     let nk = cfg.classes.len();
     let mut acc: Vec<Vec<f64>> = cfg
         .classes
@@ -435,27 +478,12 @@ pub fn classify(
         for (c, (_, values)) in cfg.classes.iter().enumerate() {
             let row = 1 + w * fl + c;
             let n = values.len();
-            let l = &out.class_logits[c][row * n..(row + 1) * n];
-            let mx = l.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
-            let e: Vec<f64> = l.iter().map(|&x| ((x - mx) as f64).exp()).collect();
-            let z: f64 = e.iter().sum();
-            for (a, p) in acc[c].iter_mut().zip(&e) {
-                *a += p / z;
-            }
+            add_softmax(
+                &mut acc[c],
+                &out.class_logits[c][row * n..(row + 1) * n],
+                1.0 / starts.len() as f64,
+            );
         }
     }
-    Ok(cfg
-        .classes
-        .iter()
-        .zip(acc)
-        .map(|((k, values), a)| {
-            let mut v: Vec<(String, f64)> = values
-                .iter()
-                .cloned()
-                .zip(a.iter().map(|x| x / starts.len() as f64))
-                .collect();
-            v.sort_by(|x, y| y.1.total_cmp(&x.1));
-            (k.clone(), v)
-        })
-        .collect())
+    Ok(class_table(&cfg.classes, acc))
 }

@@ -6,7 +6,9 @@
 
 use super::frame::FRAME_KIND;
 use super::frame_runtime::{FrameGenerator, FrameSession};
-use super::generate::{classify as flat_classify, Generator, Sampling};
+use super::generate::{
+    add_softmax, class_table, classify as flat_classify, classify_starts, Generator, Sampling,
+};
 use super::manifest::read_manifest;
 use super::{LmError, LmSession};
 use crate::motion::Labels;
@@ -126,31 +128,16 @@ impl MotionModel {
                     ));
                 }
                 let w = c.max_frames.min(frames);
-                let n = max_windows.max(1).min(frames.div_ceil(w));
-                let starts: Vec<usize> =
-                    (0..n).map(|i| i * (frames - w) / (n - 1).max(1)).collect();
+                let starts = classify_starts(frames, w, max_windows);
                 let mut acc: Vec<Vec<f64>> =
                     c.classes.iter().map(|(_, v)| vec![0.0; v.len()]).collect();
                 for &s0 in &starts {
                     let logits = s.classify(&values[s0 * c.slots..(s0 + w) * c.slots])?;
                     for (a, l) in acc.iter_mut().zip(logits) {
-                        let mx = l.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
-                        let e: Vec<f64> = l.iter().map(|&x| ((x - mx) as f64).exp()).collect();
-                        let z: f64 = e.iter().sum();
-                        for (x, p) in a.iter_mut().zip(&e) {
-                            *x += p / z / starts.len() as f64;
-                        }
+                        add_softmax(a, &l, 1.0 / starts.len() as f64);
                     }
                 }
-                Ok(c.classes
-                    .iter()
-                    .zip(acc)
-                    .map(|((k, values), a)| {
-                        let mut v: Vec<(String, f64)> = values.iter().cloned().zip(a).collect();
-                        v.sort_by(|x, y| y.1.total_cmp(&x.1));
-                        (k.clone(), v)
-                    })
-                    .collect())
+                Ok(class_table(&c.classes, acc))
             }
         }
     }

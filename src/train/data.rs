@@ -415,6 +415,35 @@ pub fn draw_window<'a>(
     (&toks[start * fl..(start + w) * fl], &s.labels)
 }
 
+/// `(start, len)` cuts of `n` frames into windows of `w`, the last one
+/// shorter when `w` does not divide `n`.
+pub fn cuts(n: usize, w: usize) -> Vec<(usize, usize)> {
+    let w = w.max(1);
+    (0..n).step_by(w).map(|st| (st, w.min(n - st))).collect()
+}
+
+/// At most `max` of `items`, spread evenly (all of them when fewer): a
+/// fixed subset keeps evaluation cheap and comparable.
+pub fn spread<T: Copy>(items: Vec<T>, max: usize) -> Vec<T> {
+    let n = items.len();
+    if n <= max {
+        return items;
+    }
+    (0..max).map(|i| items[i * n / max]).collect()
+}
+
+/// Every window of `w` frames of each sequence, the last one of each
+/// shorter (whole frames of `fl` tokens), with the sequence's labels.
+pub fn context_windows(seqs: &[Sequence], fl: usize, w: usize) -> Vec<(&[u32], &Labels)> {
+    seqs.iter()
+        .flat_map(|s| {
+            cuts(s.frames(fl), w)
+                .into_iter()
+                .map(move |(st, len)| (&s.tokens[st * fl..(st + len) * fl], &s.labels))
+        })
+        .collect()
+}
+
 /// Fixed evaluation windows: every non-overlapping window of each sequence.
 pub fn eval_windows(seqs: &[Sequence], fl: usize, frames: usize) -> Vec<(&[u32], &Labels)> {
     let mut out = Vec::new();

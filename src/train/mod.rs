@@ -7,6 +7,7 @@ pub mod data;
 pub mod export;
 pub mod frame;
 pub mod frame_export;
+pub mod frame_run;
 pub mod inbetween;
 pub mod model;
 pub mod parity;
@@ -233,14 +234,10 @@ pub fn evaluate_on(
 ) -> Result<Evaluation> {
     let cfg = &model.cfg;
     let fl = cfg.frame_len;
-    let mut windows = data::eval_windows(&corpus.val, fl, cfg.max_frames);
-    // A fixed, evenly spread subset keeps evaluation cheap and comparable.
-    if windows.len() > max_windows {
-        let n = windows.len();
-        windows = (0..max_windows)
-            .map(|i| windows[i * n / max_windows])
-            .collect();
-    }
+    let windows = data::spread(
+        data::eval_windows(&corpus.val, fl, cfg.max_frames),
+        max_windows,
+    );
     if windows.is_empty() {
         bail!("no validation windows (the split held out nothing)");
     }
