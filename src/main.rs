@@ -603,7 +603,7 @@ fn run(cli: Cli) -> Result<()> {
             let filters = parse_pairs("--filter", &filter)?;
             let m = io::read_path(&motion, &read.options())?.motion;
             let req = QueryRequest {
-                motion: m,
+                source: m.into(),
                 start_s: start,
                 frames,
                 k,
@@ -829,12 +829,13 @@ async fn query(db: PathBuf, req: QueryRequest, json: bool) -> Result<()> {
         bail!("{}: no such store (run choreo ingest first)", db.display());
     }
     let store = Store::open(&db).await?;
-    let searcher = Searcher::open(store, HnswParams::default()).await?;
-    let hits = searcher.query(&req).await?;
+    let searcher = std::sync::Arc::new(Searcher::open(store, HnswParams::default()).await?);
+    let (embedding, metric) = (req.embedding, req.metric);
+    let hits = searcher.query(req).await?;
     if json {
         println!(
             "{}",
-            json!({"embedding": req.embedding, "metric": req.metric, "hits": hits})
+            json!({"embedding": embedding, "metric": metric, "hits": hits})
         );
     } else {
         println!("{:>4}  {:>8}  {:>8}  motion", "rank", "score", "start_s");
@@ -1008,7 +1009,7 @@ fn bench_index(
         let data = synthetic_latent(n, dim, 1);
         let gen_s = t.elapsed().as_secs_f64();
         let items: Vec<(usize, Vec<f32>)> = data.into_iter().enumerate().collect();
-        let mut exact = ExactIndex::new(metric, dim);
+        let exact = ExactIndex::new(metric, dim);
         for (i, v) in &items {
             exact.add(*i, v);
         }
@@ -1041,7 +1042,7 @@ fn bench_index(
             continue;
         }
         let t = Instant::now();
-        let mut h = HnswIndex::new(metric, dim, n, params);
+        let h = HnswIndex::new(metric, dim, n, params);
         h.add_batch(&items);
         let build_s = t.elapsed().as_secs_f64();
         drop(items);

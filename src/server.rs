@@ -141,6 +141,9 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         inbetweener,
         cfg.token.clone(),
     ));
+    state
+        .searcher
+        .spawn_maintenance(std::time::Duration::from_millis(500));
     let max = cfg.max_body_mb.max(1) << 20;
     let http_l = tokio::net::TcpListener::bind((cfg.bind.as_str(), cfg.http_port))
         .await

@@ -42,7 +42,7 @@ fn write(dir: &Path, m: &Motion) {
 
 fn req(m: &Motion, start_s: f64, e: Embedding, metric: Metric) -> QueryRequest {
     QueryRequest {
-        motion: m.clone(),
+        source: m.clone().into(),
         start_s,
         frames: 128,
         k: 5,
@@ -91,11 +91,12 @@ async fn ingest_query_filters_staleness_and_errors() {
 
     let s = Searcher::open(store.clone(), HnswParams::default())
         .await
+        .map(std::sync::Arc::new)
         .unwrap();
     for e in Embedding::ALL {
         for metric in Metric::ALL {
             // A window of `fast` finds itself first.
-            let hits = s.query(&req(&fast, 64.0 / 60.0, e, metric)).await.unwrap();
+            let hits = s.query(req(&fast, 64.0 / 60.0, e, metric)).await.unwrap();
             assert!(
                 hits[0].source_path.ends_with("swing_wild_001.npz"),
                 "{e:?} {metric:?}: {hits:?}"
@@ -109,7 +110,7 @@ async fn ingest_query_filters_staleness_and_errors() {
             // HNSW equals exact on this small store.
             let mut ex = req(&fast, 64.0 / 60.0, e, metric);
             ex.exact = true;
-            let exact = s.query(&ex).await.unwrap();
+            let exact = s.query(ex.clone()).await.unwrap();
             // (Periodic fixtures tie, so compare the ranked scores.)
             assert_eq!(hits.len(), exact.len());
             for (a, b) in hits.iter().zip(&exact) {
@@ -123,20 +124,20 @@ async fn ingest_query_filters_staleness_and_errors() {
     // Filters: only calm motions.
     let mut f = req(&fast, 0.0, Embedding::Dct, Metric::Cosine);
     f.filters = vec![("style".into(), "calm".into())];
-    let hits = s.query(&f).await.unwrap();
+    let hits = s.query(f.clone()).await.unwrap();
     assert_eq!(hits.len(), 5);
     assert!(hits.iter().all(|h| h.labels["style"] == "calm"));
     // A longer segment queries several windows.
     let mut long = req(&slow, 1.0, Embedding::Stft, Metric::Cosine);
     long.frames = 300;
-    assert!(s.query(&long).await.unwrap()[0]
+    assert!(s.query(long.clone()).await.unwrap()[0]
         .source_path
         .ends_with("swing_calm_001.npz"));
 
     // Bad queries name the field.
     let short = clip("q", 100, 1.0, 0.0, "calm");
     let e = s
-        .query(&req(&short, 0.0, Embedding::Dct, Metric::Cosine))
+        .query(req(&short, 0.0, Embedding::Dct, Metric::Cosine))
         .await
         .unwrap_err()
         .to_string();
@@ -144,7 +145,7 @@ async fn ingest_query_filters_staleness_and_errors() {
     let mut nan = fast.clone();
     nan.rotations[10][0] = f64::NAN;
     let e = s
-        .query(&req(&nan, 0.0, Embedding::Dct, Metric::Cosine))
+        .query(req(&nan, 0.0, Embedding::Dct, Metric::Cosine))
         .await
         .unwrap_err()
         .to_string();
@@ -166,14 +167,19 @@ async fn ingest_query_filters_staleness_and_errors() {
     )
     .unwrap();
     let e = s
-        .query(&req(&alien, 0.0, Embedding::Dct, Metric::Cosine))
+        .query(req(&alien, 0.0, Embedding::Dct, Metric::Cosine))
         .await
         .unwrap_err()
         .to_string();
     assert!(e.contains("joint map") || e.contains("Left_Hip"), "{e}");
     let mut k0 = req(&fast, 0.0, Embedding::Dct, Metric::Cosine);
     k0.k = 0;
-    assert!(s.query(&k0).await.unwrap_err().to_string().contains("k"));
+    assert!(s
+        .query(k0.clone())
+        .await
+        .unwrap_err()
+        .to_string()
+        .contains("k"));
 
     // The index was saved; after another ingest it is stale and rebuilt with
     // the new windows; a corrupt dump is rebuilt too.
@@ -192,24 +198,223 @@ async fn ingest_query_filters_staleness_and_errors() {
     ingest(&store, &[extra], &tagged, &noop).await.unwrap();
     let s2 = Searcher::open(store.clone(), HnswParams::default())
         .await
+        .map(std::sync::Arc::new)
         .unwrap();
     let hits = s2
-        .query(&req(&newer, 32.0 / 60.0, Embedding::Dct, Metric::Cosine))
+        .query(req(&newer, 32.0 / 60.0, Embedding::Dct, Metric::Cosine))
         .await
         .unwrap();
     assert!(hits[0].source_path.ends_with("newer.npz"), "{hits:?}");
     // Labels given at ingest filter too.
     let mut late = req(&fast, 0.0, Embedding::Dct, Metric::Cosine);
     late.filters = vec![("session".into(), "late".into())];
-    let hits = s2.query(&late).await.unwrap();
+    let hits = s2.query(late.clone()).await.unwrap();
     assert!(!hits.is_empty() && hits.iter().all(|h| h.source_path.ends_with("newer.npz")));
-    std::fs::write(format!("{base}.hnsw.graph"), b"garbage").unwrap();
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(format!("{base}.meta.json")).unwrap()).unwrap();
+    let dump = dir.path().join(format!(
+        "{}.hnsw.graph",
+        meta["dump_basename"].as_str().unwrap()
+    ));
+    assert!(dump.exists(), "{dump:?}");
+    std::fs::write(dump, b"garbage").unwrap();
     let s3 = Searcher::open(store.clone(), HnswParams::default())
         .await
+        .map(std::sync::Arc::new)
         .unwrap();
     let hits = s3
-        .query(&req(&newer, 32.0 / 60.0, Embedding::Dct, Metric::Cosine))
+        .query(req(&newer, 32.0 / 60.0, Embedding::Dct, Metric::Cosine))
         .await
         .unwrap();
     assert!(hits[0].source_path.ends_with("newer.npz"));
+}
+
+/// The live searcher: an ingest is found by the very next query (in every
+/// built index, PCA included, on the basis in service), a delete vanishes
+/// at once, labels sent with stored content are merged, a query by stored
+/// id equals the query by the same clip, queries keep answering while
+/// writes go on, and maintenance saves dumps a new searcher loads as they
+/// are (no rebuild).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn live_writes_reach_queries_at_once() {
+    use choreo::service::ingest::Stored;
+    use choreo::service::query::QuerySource;
+    use std::sync::Arc;
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("live.db");
+    let store = Store::open(&db).await.unwrap();
+    let files = dir.path().join("seed");
+    std::fs::create_dir(&files).unwrap();
+    for (i, f) in [0.5, 1.0, 1.5, 2.0].iter().enumerate() {
+        write(&files, &clip(&format!("seed{i}"), 400, *f, 0.0, "calm"));
+    }
+    let noop = |_: usize, _: usize, _: &str| {};
+    ingest(&store, &[files], &IngestOptions::default(), &noop)
+        .await
+        .unwrap();
+    let s = Arc::new(
+        Searcher::open(store.clone(), HnswParams::default())
+            .await
+            .unwrap(),
+    );
+    // Build every index before the writes.
+    for e in Embedding::ALL {
+        s.query(req(
+            &clip("q", 200, 1.0, 0.0, "calm"),
+            0.0,
+            e,
+            Metric::Cosine,
+        ))
+        .await
+        .unwrap();
+    }
+    let opts = IngestOptions {
+        keep_files: true,
+        ..Default::default()
+    };
+    let novel = clip("novel", 500, 3.3, 0.7, "wild");
+    let bytes = write_amass_npz(&novel).unwrap();
+    let out = s
+        .ingest("novel.npz", bytes.clone(), &opts)
+        .await
+        .unwrap()
+        .unwrap();
+    let Stored::New { motion_id, windows } = out.stored else {
+        panic!("{out:?}")
+    };
+    assert_eq!(windows, (500 - 128) / 32 + 1);
+    for e in Embedding::ALL {
+        let hits = s
+            .query(req(&novel, 64.0 / 60.0, e, Metric::Cosine))
+            .await
+            .unwrap();
+        assert_eq!(hits[0].motion_id, motion_id, "{e:?}: {hits:?}");
+        assert_eq!(hits[0].start_frame, 64, "{e:?}");
+        assert!(hits[0].score > 0.9999, "{e:?}: {}", hits[0].score);
+        // The same query by stored id.
+        let mut by_id = req(&novel, 64.0 / 60.0, e, Metric::Cosine);
+        by_id.source = QuerySource::Stored(motion_id);
+        let again = s.query(by_id).await.unwrap();
+        assert_eq!(again[0].motion_id, motion_id);
+        assert!((again[0].score - hits[0].score).abs() < 1e-4, "{e:?}");
+    }
+    // An unknown stored id is not found.
+    let mut gone = req(&novel, 0.0, Embedding::Dct, Metric::Cosine);
+    gone.source = QuerySource::Stored(9999);
+    assert!(matches!(
+        s.query(gone).await,
+        Err(choreo::service::query::QueryError::NotFound(9999))
+    ));
+    // The same bytes again with labels: nothing stored, labels merged.
+    let tagged = IngestOptions {
+        extra_labels: [("session".to_string(), "late".to_string())]
+            .into_iter()
+            .collect(),
+        ..opts.clone()
+    };
+    let again = s
+        .ingest("novel.npz", bytes, &tagged)
+        .await
+        .unwrap()
+        .unwrap();
+    assert_eq!(again.stored, Stored::Existing { motion_id });
+    let merged = again.merged_labels.unwrap();
+    assert_eq!(merged["session"], "late");
+    let mut late = req(&novel, 0.0, Embedding::Stft, Metric::Cosine);
+    late.filters = vec![("session".into(), "late".into())];
+    let hits = s.query(late).await.unwrap();
+    assert!(!hits.is_empty() && hits.iter().all(|h| h.motion_id == motion_id));
+    assert_eq!(hits[0].labels["session"], "late");
+
+    // Queries keep answering while 6 takes are ingested one by one.
+    let writer = {
+        let s = s.clone();
+        let opts = opts.clone();
+        tokio::spawn(async move {
+            for i in 0..6 {
+                let m = clip(&format!("burst{i}"), 300, 0.7 + 0.4 * i as f64, 0.3, "calm");
+                s.ingest(
+                    &format!("burst{i}.npz"),
+                    write_amass_npz(&m).unwrap(),
+                    &opts,
+                )
+                .await
+                .unwrap()
+                .unwrap();
+            }
+        })
+    };
+    let mut slowest = std::time::Duration::ZERO;
+    while !writer.is_finished() {
+        let t = std::time::Instant::now();
+        s.query(req(&novel, 0.5, Embedding::Stft, Metric::Cosine))
+            .await
+            .unwrap();
+        slowest = slowest.max(t.elapsed());
+    }
+    writer.await.unwrap();
+    assert!(
+        slowest < std::time::Duration::from_secs(5),
+        "a query took {slowest:?} during writes"
+    );
+
+    // Delete: gone from the next query of every index.
+    assert!(s.delete(motion_id).await.unwrap());
+    assert!(!s.delete(motion_id).await.unwrap());
+    for e in Embedding::ALL {
+        let hits = s
+            .query(req(&novel, 64.0 / 60.0, e, Metric::Cosine))
+            .await
+            .unwrap();
+        assert!(hits.iter().all(|h| h.motion_id != motion_id), "{e:?}");
+    }
+    // Maintenance: PCA refitted (the windows grew past the drift share),
+    // dumps saved at the store's generation; a new searcher loads them and
+    // answers the same.
+    s.maintain().await.unwrap();
+    assert!(!choreo::service::ingest::pca_due(&store).await.unwrap());
+    let generation = store.generation().await.unwrap();
+    let probe = clip("burst3", 300, 0.7 + 0.4 * 3.0, 0.3, "calm");
+    let before = s
+        .query(req(&probe, 0.5, Embedding::Dct, Metric::Cosine))
+        .await
+        .unwrap();
+    assert!(before[0].source_path.ends_with("burst3.npz"), "{before:?}");
+    for e in Embedding::ALL {
+        let meta: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(format!("{}.{}-cosine.meta.json", db.display(), e.name())).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(meta["generation"], generation, "{e:?}");
+    }
+    let s2 = Arc::new(
+        Searcher::open(store.clone(), HnswParams::default())
+            .await
+            .unwrap(),
+    );
+    let after = s2
+        .query(req(&probe, 0.5, Embedding::Dct, Metric::Cosine))
+        .await
+        .unwrap();
+    assert_eq!(
+        before
+            .iter()
+            .map(|h| (h.motion_id, h.start_frame))
+            .collect::<Vec<_>>(),
+        after
+            .iter()
+            .map(|h| (h.motion_id, h.start_frame))
+            .collect::<Vec<_>>()
+    );
+    // The loaded dump still holds the deleted windows' points, hidden.
+    let ix = s2
+        .index(Embedding::Dct, Metric::Cosine, false)
+        .await
+        .unwrap();
+    assert_eq!(ix.len(), s2.window_count() + windows);
+    let hits = s2
+        .query(req(&novel, 64.0 / 60.0, Embedding::Dct, Metric::Cosine))
+        .await
+        .unwrap();
+    assert!(hits.iter().all(|h| h.motion_id != motion_id));
 }

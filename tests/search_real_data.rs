@@ -97,7 +97,7 @@ async fn hnsw_recall_on_the_real_corpus() {
         let rows = store.embeddings(e).await.unwrap();
         let dim = rows[0].1.len();
         for metric in Metric::ALL {
-            let mut exact = ExactIndex::new(metric, dim);
+            let exact = ExactIndex::new(metric, dim);
             let items: Vec<(usize, Vec<f32>)> = rows
                 .iter()
                 .map(|(id, v)| (*id as usize, v.clone()))
@@ -105,7 +105,7 @@ async fn hnsw_recall_on_the_real_corpus() {
             for (id, v) in &items {
                 exact.add(*id, v);
             }
-            let mut h = HnswIndex::new(metric, dim, items.len(), HnswParams::default());
+            let h = HnswIndex::new(metric, dim, items.len(), HnswParams::default());
             h.add_batch(&items);
             let step = (items.len() / 300).max(1);
             let qs: Vec<&Vec<f32>> = items.iter().step_by(step).map(|(_, v)| v).collect();

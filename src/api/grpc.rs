@@ -376,16 +376,23 @@ impl Choreo for ChoreoGrpc {
             r.labels.into_iter().collect(),
         )
         .await?;
-        Ok(Response::new(match stored {
+        let merged_labels = stored
+            .merged_labels
+            .unwrap_or_default()
+            .into_iter()
+            .collect();
+        Ok(Response::new(match stored.stored {
             super::Stored::New { motion_id, windows } => pb::IngestResponse {
                 motion_id,
                 created: true,
                 windows: windows as u32,
+                merged_labels,
             },
             super::Stored::Existing { motion_id } => pb::IngestResponse {
                 motion_id,
                 created: false,
                 windows: 0,
+                merged_labels,
             },
         }))
     }

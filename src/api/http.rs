@@ -316,7 +316,7 @@ async fn ingest(
     s.authorize_write(bearer(&headers))?;
     let b = body(b)?;
     let stored = super::ingest(&s, source("motion", b.motion)?, b.labels).await?;
-    let status = match stored {
+    let status = match stored.stored {
         super::Stored::New { .. } => StatusCode::CREATED,
         super::Stored::Existing { .. } => StatusCode::OK,
     };

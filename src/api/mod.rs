@@ -18,14 +18,14 @@ use crate::motion::io::json::{write_json, MotionJson, MotionParts};
 use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::{Labels, Motion, MotionError};
 pub use crate::service::ingest::Stored;
-use crate::service::ingest::{
-    ingest_bytes, load_motion, load_source, parse_source, IngestOptions, LoadError,
-};
+use crate::service::ingest::{load_motion, load_source, parse_source, IngestOptions, LoadError};
 use crate::service::interpolate::{interpolate_motions, with_channels, InterpolateReport};
 use crate::service::keyframes::{
     reconstruct, Inbetween, KeyframeReport, KeyframeRequest, LearnedModel, Music, Select,
 };
-use crate::service::query::{QueryError, QueryHit, QueryRequest, Searcher};
+use crate::service::query::{
+    IngestOutcome, QueryError, QueryHit, QueryRequest, QuerySource, Searcher,
+};
 use crate::store::{MotionRow, Store};
 use std::sync::Arc;
 use tokio::sync::Semaphore;
@@ -126,6 +126,8 @@ impl From<QueryError> for ApiError {
     fn from(e: QueryError) -> Self {
         match e {
             QueryError::Motion(m) => m.into(),
+            QueryError::NotFound(id) => ApiError::NotFound(format!("motion {id}")),
+            QueryError::Store(e) => ApiError::Internal(e.to_string()),
             other => ApiError::Internal(other.to_string()),
         }
     }
@@ -197,17 +199,18 @@ impl From<LoadError> for ApiError {
 /// Shared server state.
 pub struct AppState {
     pub store: Store,
-    /// The searcher over the store as of its last refresh (swapped after
-    /// every write).
-    pub searcher: std::sync::RwLock<Arc<Searcher>>,
-    /// Serialises writes (ingest, delete) and the searcher refresh after
-    /// them.
-    pub writes: tokio::sync::Mutex<()>,
+    /// The live searcher: writes go through it and reach its indexes at
+    /// once; its maintenance runs in the background.
+    pub searcher: Arc<Searcher>,
     /// The bearer token writes need; `None` switches writes off.
     pub token: Option<String>,
     /// Permits for CPU-heavy requests (interpolate, lowpass, keyframes,
     /// generate, classify; a stream holds one for its whole life).
     pub workers: Arc<Semaphore>,
+    /// Permits for queries (the light pool: one per core). Queries wait for
+    /// one rather than fail, and never take a heavy permit, so they keep
+    /// flowing while generation holds every worker.
+    pub light: Arc<Semaphore>,
     /// The motion language model, when one is installed.
     pub model: Option<crate::lm::model::MotionModel>,
     /// The learned in-betweener, when one is installed.
@@ -227,19 +230,21 @@ impl AppState {
     ) -> AppState {
         AppState {
             store,
-            searcher: std::sync::RwLock::new(Arc::new(searcher)),
-            writes: tokio::sync::Mutex::new(()),
+            searcher: Arc::new(searcher),
             token: token.filter(|t| !t.is_empty()),
             workers: Arc::new(Semaphore::new(workers.max(1))),
+            light: Arc::new(Semaphore::new(
+                std::thread::available_parallelism().map_or(2, |n| n.get()),
+            )),
             model,
             inbetweener,
             metrics: Default::default(),
         }
     }
 
-    /// The current searcher.
+    /// The live searcher.
     pub fn searcher(&self) -> Arc<Searcher> {
-        self.searcher.read().expect("searcher lock").clone()
+        self.searcher.clone()
     }
 
     /// The motion of any input (uploads parsed, stored ones read from the
@@ -262,7 +267,7 @@ impl AppState {
                     .await
                     .map_err(|e| prefix(field, e.into()))?
                     .ok_or_else(|| {
-                        ApiError::invalid(format!("{field}.id"), format!("no stored motion {id}"))
+                        ApiError::NotFound(format!("{field}.id: no stored motion {id}"))
                     })?
                     .1
             }
@@ -293,20 +298,6 @@ impl AppState {
                 "the bearer token is wrong".into(),
             )),
         }
-    }
-
-    /// Reopen the searcher on the store as it is now (refits the PCA basis
-    /// when the windows changed). Call with `writes` held.
-    async fn refresh_searcher(&self) -> Result<(), ApiError> {
-        let current = self.searcher();
-        if current.generation() == self.store.generation().await.map_err(internal)? {
-            return Ok(());
-        }
-        let s = Searcher::open(self.store.clone(), current.params())
-            .await
-            .map_err(internal)?;
-        *self.searcher.write().expect("searcher lock") = Arc::new(s);
-        Ok(())
     }
 
     /// Run CPU work on the blocking pool under a worker permit; no permit
@@ -343,7 +334,10 @@ pub struct QueryParams {
 }
 
 pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, ApiError> {
-    let motion = state.resolve("motion", p.motion).await?;
+    let source = match p.motion {
+        MotionInput::Stored(id) => QuerySource::Stored(id),
+        other => QuerySource::Motion(state.resolve("motion", other).await?),
+    };
     let embedding = match p.embedding.as_str() {
         "" => Embedding::Stft,
         e => Embedding::parse(e).ok_or_else(|| {
@@ -360,7 +354,7 @@ pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, Ap
         return Err(ApiError::invalid("k", format!("{}; at most 1000", p.k)));
     }
     let req = QueryRequest {
-        motion,
+        source,
         start_s: p.start_s,
         frames: if p.frames == 0 { 128 } else { p.frames },
         k: if p.k == 0 { 10 } else { p.k },
@@ -369,7 +363,13 @@ pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, Ap
         filters: p.filters,
         exact: p.exact,
     };
-    Ok(state.searcher().query(&req).await?)
+    let _permit = state
+        .light
+        .clone()
+        .acquire_owned()
+        .await
+        .map_err(|_| ApiError::Busy("the query pool is closed".into()))?;
+    Ok(state.searcher.query(req).await?)
 }
 
 pub struct InterpolateParams {
@@ -521,13 +521,14 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
 }
 
 /// Store a motion (an upload in any supported format, or an inline motion,
-/// kept as choreo JSON) with `labels` added, and refresh the searcher so
-/// the next query sees it. Idempotent by content hash.
+/// kept as choreo JSON) with `labels` added; the next query sees it.
+/// Idempotent by content hash: labels sent with content already stored are
+/// merged into its labels, and the answer gives them.
 pub async fn ingest(
     state: &AppState,
     input: MotionInput,
     labels: Labels,
-) -> Result<Stored, ApiError> {
+) -> Result<IngestOutcome, ApiError> {
     let (name, bytes) = match input {
         MotionInput::Inline(m) => {
             let stem: String = m
@@ -572,13 +573,12 @@ pub async fn ingest(
         .clone()
         .try_acquire_owned()
         .map_err(|_| ApiError::Busy("every worker is busy; retry ingest later".into()))?;
-    let _w = state.writes.lock().await;
-    let stored = ingest_bytes(&state.store, &name, bytes, &opts)
+    state
+        .searcher
+        .ingest(&name, bytes, &opts)
         .await
         .map_err(internal)?
-        .map_err(|e| prefix("motion", e.into()))?;
-    state.refresh_searcher().await?;
-    Ok(stored)
+        .map_err(|e| prefix("motion", e.into()))
 }
 
 /// A stored motion and its row.
@@ -607,11 +607,10 @@ pub async fn export_bvh(state: &AppState, id: i64) -> Result<String, ApiError> {
 
 /// Remove a stored motion and everything derived from it.
 pub async fn delete_motion(state: &AppState, id: i64) -> Result<(), ApiError> {
-    let _w = state.writes.lock().await;
-    if !state.store.delete_motion(id).await.map_err(internal)? {
+    if !state.searcher.delete(id).await.map_err(internal)? {
         return Err(ApiError::NotFound(format!("motion {id}")));
     }
-    state.refresh_searcher().await
+    Ok(())
 }
 
 pub async fn list_motions(state: &AppState) -> Result<Vec<MotionRow>, ApiError> {

@@ -6,6 +6,7 @@ use super::{AnnIndex, Hit, Metric};
 use hnsw_rs::prelude::{AnnT, Distance, FilterT, Hnsw, HnswIo};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Cosine on L2-normalised vectors: `1 − a·b`, clamped at 0.
 #[derive(Default, Clone, Copy)]
@@ -86,7 +87,9 @@ pub struct IndexMeta {
 pub struct HnswIndex {
     metric: Metric,
     dim: usize,
-    count: usize,
+    /// Points in the graph (deleted ones included: hnsw_rs cannot remove a
+    /// point; the caller's filter hides them until a rebuild).
+    count: AtomicUsize,
     params: HnswParams,
     graph: Graph,
 }
@@ -114,7 +117,7 @@ impl HnswIndex {
         HnswIndex {
             metric,
             dim,
-            count: 0,
+            count: AtomicUsize::new(0),
             params,
             graph,
         }
@@ -127,47 +130,74 @@ impl HnswIndex {
         self.params.ef_search = ef.max(1);
     }
 
-    /// Insert many raw vectors at once, using every core.
-    pub fn add_batch(&mut self, items: &[(usize, Vec<f32>)]) {
+    /// Insert many raw vectors at once, using every core. Searches may run
+    /// meanwhile (hnsw_rs locks each neighbour list, not the graph).
+    pub fn add_batch(&self, items: &[(usize, Vec<f32>)]) {
         let prepared: Vec<(Vec<f32>, usize)> = items
             .iter()
             .map(|(id, v)| (self.metric.prepare(v), *id))
             .collect();
         let refs: Vec<(&Vec<f32>, usize)> = prepared.iter().map(|(v, id)| (v, *id)).collect();
-        match &mut self.graph {
+        match &self.graph {
             Graph::Cos(h) => h.parallel_insert(&refs),
             Graph::L2(h) => h.parallel_insert(&refs),
-            Graph::LoadedCos(h) => h.with_dependent_mut(|_, g| g.parallel_insert(&refs)),
-            Graph::LoadedL2(h) => h.with_dependent_mut(|_, g| g.parallel_insert(&refs)),
+            Graph::LoadedCos(h) => h.with_dependent(|_, g| g.parallel_insert(&refs)),
+            Graph::LoadedL2(h) => h.with_dependent(|_, g| g.parallel_insert(&refs)),
         }
-        self.count += items.len();
+        self.count.fetch_add(items.len(), Ordering::Release);
     }
 
-    /// Write the dump beside `base` (a path without extension) and its meta.
+    /// Write the dump beside `base` (a path without extension) under a name
+    /// of its own (`STEM-gGENERATION`), then its meta (renamed into place),
+    /// then remove the dump the old meta named: a crash at any point leaves
+    /// a meta naming a whole dump. The caller keeps inserts out meanwhile.
     pub fn save(&self, base: &Path, generation: i64) -> anyhow::Result<IndexMeta> {
         let dir = base.parent().unwrap_or(Path::new("."));
         let stem = base.file_name().and_then(|s| s.to_str()).unwrap_or("index");
+        let old: Option<IndexMeta> = std::fs::read(meta_path(base))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok());
+        let name = format!("{stem}-g{generation}");
         for ext in ["hnsw.graph", "hnsw.data"] {
-            let _ = std::fs::remove_file(dir.join(format!("{stem}.{ext}")));
+            let _ = std::fs::remove_file(dir.join(format!("{name}.{ext}")));
         }
         let dumped = match &self.graph {
-            Graph::Cos(h) => h.file_dump(dir, stem)?,
-            Graph::L2(h) => h.file_dump(dir, stem)?,
-            Graph::LoadedCos(h) => h.with_dependent(|_, g| g.file_dump(dir, stem))?,
-            Graph::LoadedL2(h) => h.with_dependent(|_, g| g.file_dump(dir, stem))?,
+            Graph::Cos(h) => h.file_dump(dir, &name)?,
+            Graph::L2(h) => h.file_dump(dir, &name)?,
+            Graph::LoadedCos(h) => h.with_dependent(|_, g| g.file_dump(dir, &name))?,
+            Graph::LoadedL2(h) => h.with_dependent(|_, g| g.file_dump(dir, &name))?,
         };
         let meta = IndexMeta {
             metric: self.metric,
             dim: self.dim,
-            count: self.count,
+            count: self.len(),
             generation,
             params: self.params,
-            dump_basename: dumped,
+            dump_basename: dumped.clone(),
         };
         let tmp = meta_path(base).with_extension("json.partial");
         std::fs::write(&tmp, serde_json::to_vec_pretty(&meta)?)?;
         std::fs::rename(&tmp, meta_path(base))?;
+        if let Some(old) = old.filter(|o| o.dump_basename != dumped) {
+            // Only files this index wrote (its own stem), never anything else.
+            if old.dump_basename.starts_with(stem) {
+                for ext in ["hnsw.graph", "hnsw.data"] {
+                    let _ = std::fs::remove_file(dir.join(format!("{}.{ext}", old.dump_basename)));
+                }
+            }
+        }
         Ok(meta)
+    }
+
+    /// Record a new store generation in the meta without rewriting the dump
+    /// (the graph did not change, the store moved on for other reasons).
+    pub fn touch(base: &Path, generation: i64) -> anyhow::Result<()> {
+        let mut meta: IndexMeta = serde_json::from_slice(&std::fs::read(meta_path(base))?)?;
+        meta.generation = generation;
+        let tmp = meta_path(base).with_extension("json.partial");
+        std::fs::write(&tmp, serde_json::to_vec_pretty(&meta)?)?;
+        std::fs::rename(&tmp, meta_path(base))?;
+        Ok(())
     }
 
     /// Load a dump if its meta says it matches `metric`, `dim`, `count` and
@@ -185,7 +215,7 @@ impl HnswIndex {
         let meta: IndexMeta = serde_json::from_slice(&bytes)?;
         if meta.metric != metric
             || meta.dim != dim
-            || meta.count != count
+            || meta.count < count
             || meta.generation != generation
         {
             return Ok(None);
@@ -213,7 +243,7 @@ impl HnswIndex {
         let ix = HnswIndex {
             metric,
             dim,
-            count: meta.count,
+            count: AtomicUsize::new(meta.count),
             params: meta.params,
             graph,
         };
@@ -222,8 +252,8 @@ impl HnswIndex {
             Graph::LoadedL2(h) => h.with_dependent(|_, g| g.get_nb_point()),
             _ => 0,
         };
-        if n != count {
-            anyhow::bail!("index dump holds {n} points, its meta says {count}");
+        if n != meta.count {
+            anyhow::bail!("index dump holds {n} points, its meta says {}", meta.count);
         }
         Ok(Some(ix))
     }
@@ -250,10 +280,13 @@ impl AnnIndex for HnswIndex {
         self.dim
     }
     fn len(&self) -> usize {
-        self.count
+        self.count.load(Ordering::Acquire)
     }
-    fn add(&mut self, id: usize, v: &[f32]) {
+    fn add(&self, id: usize, v: &[f32]) {
         self.add_batch(&[(id, v.to_vec())]);
+    }
+    fn as_hnsw(&self) -> Option<&HnswIndex> {
+        Some(self)
     }
     fn search(
         &self,
@@ -261,7 +294,7 @@ impl AnnIndex for HnswIndex {
         k: usize,
         filter: Option<&(dyn Fn(usize) -> bool + Sync)>,
     ) -> Vec<Hit> {
-        if k == 0 || self.count == 0 {
+        if k == 0 || self.len() == 0 {
             return Vec::new();
         }
         let q = self.metric.prepare(q);
@@ -305,8 +338,8 @@ mod tests {
         let queries = latent(100, dim, 2);
         let dir = tempfile::tempdir().unwrap();
         for metric in Metric::ALL {
-            let mut exact = ExactIndex::new(metric, dim);
-            let mut h = HnswIndex::new(metric, dim, data.len(), HnswParams::default());
+            let exact = ExactIndex::new(metric, dim);
+            let h = HnswIndex::new(metric, dim, data.len(), HnswParams::default());
             let items: Vec<(usize, Vec<f32>)> = data.iter().cloned().enumerate().collect();
             for (i, v) in &items {
                 exact.add(*i, v);

@@ -115,8 +115,13 @@ pub trait AnnIndex: Send + Sync {
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
-    /// Insert a raw (unprepared) vector.
-    fn add(&mut self, id: usize, v: &[f32]);
+    /// Insert a raw (unprepared) vector. Takes `&self`: a live index takes
+    /// inserts while it answers queries.
+    fn add(&self, id: usize, v: &[f32]);
+    /// The HNSW index behind this one, if it is one (to save it).
+    fn as_hnsw(&self) -> Option<&hnsw::HnswIndex> {
+        None
+    }
     /// The `k` nearest to a raw query among ids passing `filter`, closest first.
     fn search(
         &self,
@@ -130,6 +135,11 @@ pub trait AnnIndex: Send + Sync {
 pub struct ExactIndex {
     metric: Metric,
     dim: usize,
+    rows: std::sync::RwLock<ExactRows>,
+}
+
+#[derive(Default)]
+struct ExactRows {
     ids: Vec<usize>,
     data: Vec<f32>,
 }
@@ -139,8 +149,7 @@ impl ExactIndex {
         ExactIndex {
             metric,
             dim,
-            ids: Vec::new(),
-            data: Vec::new(),
+            rows: Default::default(),
         }
     }
 }
@@ -153,12 +162,14 @@ impl AnnIndex for ExactIndex {
         self.dim
     }
     fn len(&self) -> usize {
-        self.ids.len()
+        self.rows.read().expect("exact index").ids.len()
     }
-    fn add(&mut self, id: usize, v: &[f32]) {
+    fn add(&self, id: usize, v: &[f32]) {
         assert_eq!(v.len(), self.dim, "vector dimension");
-        self.ids.push(id);
-        self.data.extend(self.metric.prepare(v));
+        let v = self.metric.prepare(v);
+        let mut rows = self.rows.write().expect("exact index");
+        rows.ids.push(id);
+        rows.data.extend(v);
     }
     fn search(
         &self,
@@ -167,8 +178,9 @@ impl AnnIndex for ExactIndex {
         filter: Option<&(dyn Fn(usize) -> bool + Sync)>,
     ) -> Vec<Hit> {
         let q = self.metric.prepare(q);
+        let rows = self.rows.read().expect("exact index");
         let mut top: Vec<Hit> = Vec::with_capacity(k + 1);
-        for (i, &id) in self.ids.iter().enumerate() {
+        for (i, &id) in rows.ids.iter().enumerate() {
             if let Some(f) = filter {
                 if !f(id) {
                     continue;
@@ -176,7 +188,7 @@ impl AnnIndex for ExactIndex {
             }
             let d = self
                 .metric
-                .distance(&q, &self.data[i * self.dim..(i + 1) * self.dim]);
+                .distance(&q, &rows.data[i * self.dim..(i + 1) * self.dim]);
             push_top(&mut top, Hit { id, distance: d }, k);
         }
         top
@@ -234,7 +246,7 @@ mod tests {
 
     #[test]
     fn exact_search_by_hand() {
-        let mut ix = ExactIndex::new(Metric::Euclidean, 2);
+        let ix = ExactIndex::new(Metric::Euclidean, 2);
         ix.add(10, &[0.0, 0.0]);
         ix.add(11, &[1.0, 0.0]);
         ix.add(12, &[5.0, 5.0]);
@@ -244,7 +256,7 @@ mod tests {
         let h = ix.search(&[0.9, 0.1], 2, Some(&only_far));
         assert_eq!(h.len(), 1);
         assert_eq!(h[0].id, 12);
-        let mut c = ExactIndex::new(Metric::Cosine, 2);
+        let c = ExactIndex::new(Metric::Cosine, 2);
         c.add(1, &[2.0, 0.0]);
         c.add(2, &[0.0, 3.0]);
         let h = c.search(&[1.0, 0.1], 1, None);

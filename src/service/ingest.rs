@@ -85,6 +85,18 @@ pub fn prepare(
     hash: String,
     opts: &IngestOptions,
 ) -> Result<NewMotion, MotionError> {
+    prepare_with(file, bytes, hash, opts, None)
+}
+
+/// [`prepare`], with PCA embeddings too when a basis is given (the live
+/// server projects new windows on the basis it is serving).
+pub fn prepare_with(
+    file: &str,
+    bytes: Vec<u8>,
+    hash: String,
+    opts: &IngestOptions,
+    pca: Option<&Pca>,
+) -> Result<NewMotion, MotionError> {
     let loaded = read_bytes(file, &bytes, &opts.read)?;
     let m = &loaded.motion;
     let ch = channels72(m)?;
@@ -96,7 +108,10 @@ pub fn prepare(
             NewWindow {
                 start_frame: s,
                 frames: WINDOW,
-                embeddings: vec![(Embedding::Stft, ex.stft(&w)), (Embedding::Dct, ex.dct(&w))],
+                embeddings: [(Embedding::Stft, ex.stft(&w)), (Embedding::Dct, ex.dct(&w))]
+                    .into_iter()
+                    .chain(pca.map(|p| (Embedding::Pca, p.project_window(&w))))
+                    .collect(),
             }
         })
         .collect();
@@ -221,7 +236,7 @@ pub async fn ingest_bytes(
     match prepared {
         Ok(Ok(m)) => {
             let windows = m.windows.len();
-            let motion_id = store.insert_motion(&m).await?;
+            let (motion_id, _) = store.insert_motion(&m).await?;
             Ok(Ok(Stored::New { motion_id, windows }))
         }
         Ok(Err(e)) | Err(e) => Ok(Err(e)),
@@ -301,12 +316,56 @@ pub async fn refresh_pca(store: &Store) -> Result<Option<Pca>, StoreError> {
             return Ok(serde_json::from_str(&body).ok());
         }
     }
+    Ok(refit_pca(store).await?.map(|(p, _)| p))
+}
+
+/// The stored PCA basis, if any.
+pub async fn stored_pca(store: &Store) -> Result<Option<Pca>, StoreError> {
+    Ok(store
+        .model("pca")
+        .await?
+        .and_then(|(_, body)| serde_json::from_str(&body).ok()))
+}
+
+/// Share of windows added or removed since the PCA fit past which a live
+/// server refits it (between refits, new windows are projected on the
+/// basis in service: a fixed linear map, so answers stay consistent).
+pub const PCA_DRIFT: f64 = 0.10;
+
+/// Whether the PCA basis must be refitted: there is none while windows
+/// exist, some window has no PCA embedding, or the window count drifted
+/// past [`PCA_DRIFT`] since the fit.
+pub async fn pca_due(store: &Store) -> Result<bool, StoreError> {
+    let (_, nwin) = store.counts().await?;
+    if nwin == 0 {
+        return Ok(false);
+    }
+    let Some((fp, _)) = store.model("pca").await? else {
+        return Ok(true);
+    };
+    if store.count_embeddings(Embedding::Pca).await? != nwin {
+        return Ok(true);
+    }
+    // The fingerprint is `count · 1_000_000_007 + max id`.
+    let fitted = (fp / 1_000_000_007) as f64;
+    Ok((nwin as f64 - fitted).abs() > PCA_DRIFT * fitted.max(1.0))
+}
+
+/// Fit the PCA basis on every stored window, re-embed all windows with it
+/// and store both (one transaction). Returns the basis and the rows.
+pub async fn refit_pca(store: &Store) -> Result<Option<(Pca, Vec<(i64, Vec<f32>)>)>, StoreError> {
+    let fp = store.windows_fingerprint().await?;
     let (_, nwin) = store.counts().await?;
     if nwin == 0 {
         return Ok(None);
     }
     let channels = store.all_channels().await?;
     let windows = store.windows().await?;
+    let corrupt = |reason: String| StoreError::Corrupt {
+        path: store.path().display().to_string(),
+        field: "pca".into(),
+        reason,
+    };
     let (pca, rows) = tokio::task::spawn_blocking(move || {
         let by_motion: std::collections::HashMap<i64, &Vec<[f32; 72]>> =
             channels.iter().map(|(id, c)| (*id, c)).collect();
@@ -328,19 +387,11 @@ pub async fn refresh_pca(store: &Store) -> Result<Option<Pca>, StoreError> {
         Ok::<_, MotionError>((pca, rows))
     })
     .await
-    .map_err(|e| StoreError::Corrupt {
-        path: store.path().display().to_string(),
-        field: "pca".into(),
-        reason: format!("worker failed: {e}"),
-    })?
-    .map_err(|e| StoreError::Corrupt {
-        path: store.path().display().to_string(),
-        field: "pca".into(),
-        reason: e.to_string(),
-    })?;
+    .map_err(|e| corrupt(format!("worker failed: {e}")))?
+    .map_err(|e| corrupt(e.to_string()))?;
     let body = serde_json::to_string(&pca).expect("PCA serialises");
     store
         .replace_embeddings(Embedding::Pca, &rows, "pca", &body, fp)
         .await?;
-    Ok(Some(pca))
+    Ok(Some((pca, rows)))
 }

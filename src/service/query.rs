@@ -1,5 +1,14 @@
 //! Query: the stored windows most like a clip, by one embedding and metric,
 //! through the HNSW index (or exact search), optionally filtered by labels.
+//!
+//! The searcher is live. Writes go through it ([`Searcher::ingest`],
+//! [`Searcher::delete`]) and reach its indexes at once: an ingest inserts
+//! the new windows into every built index, a delete hides its windows from
+//! the next query. Anything slower (a PCA refit, compaction of deleted
+//! points, saving the dumps) runs later in [`Searcher::maintain`], one job
+//! at a time, while the old indexes keep answering. Queries never wait for
+//! a write or for maintenance, except the first query of an index not yet
+//! built, which builds it.
 
 use crate::features::{
     channels72, window, window_starts, Embedding, Extractor, Pca, StftParams, FEATURE_FPS, WINDOW,
@@ -7,11 +16,13 @@ use crate::features::{
 use crate::index::hnsw::{HnswIndex, HnswParams};
 use crate::index::{AnnIndex, ExactIndex, Hit, Metric};
 use crate::motion::{Labels, Motion, MotionError};
+use crate::service::ingest::{self, content_hash, IngestOptions, Stored};
 use crate::store::{MotionRow, Store, StoreError, WindowRef};
 use serde::Serialize;
 use std::collections::{HashMap, HashSet};
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, RwLock};
 
 #[derive(Debug, thiserror::Error)]
 pub enum QueryError {
@@ -21,11 +32,31 @@ pub enum QueryError {
     Store(#[from] StoreError),
     #[error("index {0}: {1}")]
     Index(String, String),
+    /// The query names a stored motion that does not exist.
+    #[error("no stored motion {0}")]
+    NotFound(i64),
+}
+
+/// What a query searches with.
+#[derive(Clone, Debug)]
+pub enum QuerySource {
+    /// A clip given whole.
+    Motion(Motion),
+    /// A stored motion, by id: its stored channels are read (no source
+    /// file re-read or parsed), and windows on the stored grid reuse their
+    /// stored embeddings.
+    Stored(i64),
+}
+
+impl From<Motion> for QuerySource {
+    fn from(m: Motion) -> Self {
+        QuerySource::Motion(m)
+    }
 }
 
 #[derive(Clone, Debug)]
 pub struct QueryRequest {
-    pub motion: Motion,
+    pub source: QuerySource,
     /// Start of the query segment, seconds from the clip's first frame.
     pub start_s: f64,
     /// Segment length in frames at 60 fps (at least 128; longer segments
@@ -51,52 +82,116 @@ pub struct QueryHit {
     pub labels: Labels,
 }
 
+type Key = (Embedding, Metric, bool);
+
+/// One built index and what it was built with.
+struct Entry {
+    ix: Arc<dyn AnnIndex>,
+    /// The PCA basis its vectors were projected on (PCA indexes only).
+    pca: Option<Arc<Pca>>,
+    /// Points whose windows were deleted since it was built (hidden by the
+    /// query filter until compaction).
+    dead: AtomicUsize,
+    /// Changed since it was last saved.
+    dirty: AtomicBool,
+}
+
+/// The store's windows and motions as the searcher serves them.
+#[derive(Default)]
+struct Catalog {
+    windows: HashMap<i64, WindowRef>,
+    /// Window ids of each motion.
+    by_motion: HashMap<i64, Vec<i64>>,
+    motions: HashMap<i64, MotionRow>,
+    /// The PCA basis new windows are projected on.
+    pca: Option<Arc<Pca>>,
+}
+
+impl Catalog {
+    fn add_motion(&mut self, row: MotionRow, windows: &[(i64, WindowRef)]) {
+        self.by_motion
+            .insert(row.id, windows.iter().map(|(id, _)| *id).collect());
+        for (id, w) in windows {
+            self.windows.insert(*id, *w);
+        }
+        self.motions.insert(row.id, row);
+    }
+}
+
+/// Share of deleted points past which an index is rebuilt by maintenance.
+pub const COMPACT_SHARE: f64 = 0.25;
+
 pub struct Searcher {
     store: Store,
     extractor: Extractor,
-    pca: Option<Pca>,
-    windows: HashMap<i64, WindowRef>,
-    motions: HashMap<i64, MotionRow>,
-    generation: i64,
     params: HnswParams,
-    indexes: Mutex<HashMap<(Embedding, Metric, bool), Arc<dyn AnnIndex>>>,
+    catalog: RwLock<Catalog>,
+    indexes: Mutex<HashMap<Key, Arc<Entry>>>,
+    /// Serialises writes, index builds and maintenance (never queries).
+    writes: tokio::sync::Mutex<()>,
+    /// Woken after each write; the maintenance task waits on it.
+    wake: Arc<tokio::sync::Notify>,
+}
+
+/// What [`Searcher::ingest`] did, with the labels merged into an already
+/// stored motion.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct IngestOutcome {
+    #[serde(flatten)]
+    pub stored: Stored,
+    /// For an already-stored file sent with labels: the labels as stored now.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub merged_labels: Option<Labels>,
 }
 
 impl Searcher {
-    /// Read the store's window map, motions and PCA basis.
+    /// Read the store's window map, motions and PCA basis (refitted first
+    /// when [`ingest::pca_due`]).
     pub async fn open(store: Store, params: HnswParams) -> Result<Searcher, QueryError> {
-        let pca = crate::service::ingest::refresh_pca(&store).await?;
-        let windows = store.windows().await?.into_iter().collect();
-        let motions = store
+        let pca = if ingest::pca_due(&store).await? {
+            ingest::refit_pca(&store).await?.map(|(p, _)| p)
+        } else {
+            ingest::stored_pca(&store).await?
+        };
+        let mut catalog = Catalog {
+            pca: pca.map(Arc::new),
+            ..Default::default()
+        };
+        for (id, w) in store.windows().await? {
+            catalog.windows.insert(id, w);
+            catalog.by_motion.entry(w.motion_id).or_default().push(id);
+        }
+        catalog.motions = store
             .motions()
             .await?
             .into_iter()
             .map(|m| (m.id, m))
             .collect();
-        let generation = store.generation().await?;
         Ok(Searcher {
             store,
             extractor: Extractor::new(StftParams::default())?,
-            pca,
-            windows,
-            motions,
-            generation,
             params,
+            catalog: RwLock::new(catalog),
             indexes: Mutex::new(HashMap::new()),
+            writes: tokio::sync::Mutex::new(()),
+            wake: Arc::new(tokio::sync::Notify::new()),
         })
-    }
-
-    /// The store generation this searcher reflects.
-    pub fn generation(&self) -> i64 {
-        self.generation
     }
 
     pub fn params(&self) -> HnswParams {
         self.params
     }
 
+    pub fn store(&self) -> &Store {
+        &self.store
+    }
+
     pub fn window_count(&self) -> usize {
-        self.windows.len()
+        self.catalog().windows.len()
+    }
+
+    fn catalog(&self) -> std::sync::RwLockReadGuard<'_, Catalog> {
+        self.catalog.read().expect("catalog lock")
     }
 
     fn index_base(&self, e: Embedding, m: Metric) -> PathBuf {
@@ -105,92 +200,144 @@ impl Searcher {
         PathBuf::from(s)
     }
 
-    /// The index for an embedding and metric: loaded from disk when current,
-    /// rebuilt from the store (and saved) when missing, stale or corrupt.
+    fn built(&self) -> Vec<(Key, Arc<Entry>)> {
+        self.indexes
+            .lock()
+            .expect("index map")
+            .iter()
+            .map(|(k, v)| (*k, v.clone()))
+            .collect()
+    }
+
+    /// The index for an embedding and metric (it may hold deleted windows'
+    /// points until maintenance compacts it; queries never see them).
     pub async fn index(
         &self,
         e: Embedding,
         m: Metric,
         exact: bool,
     ) -> Result<Arc<dyn AnnIndex>, QueryError> {
-        if let Some(ix) = self
-            .indexes
-            .lock()
-            .expect("index cache")
-            .get(&(e, m, exact))
-        {
-            return Ok(ix.clone());
+        Ok(self.entry((e, m, exact)).await?.ix.clone())
+    }
+
+    /// The index for an embedding and metric, built on first use: loaded
+    /// from disk when current, else built from the store and saved.
+    async fn entry(&self, key: Key) -> Result<Arc<Entry>, QueryError> {
+        if let Some(e) = self.indexes.lock().expect("index map").get(&key) {
+            return Ok(e.clone());
         }
+        let _w = self.writes.lock().await;
+        if let Some(e) = self.indexes.lock().expect("index map").get(&key) {
+            return Ok(e.clone());
+        }
+        let e = Arc::new(self.build(key, true).await?);
+        self.indexes
+            .lock()
+            .expect("index map")
+            .insert(key, e.clone());
+        Ok(e)
+    }
+
+    /// Build one index from the store (call with `writes` held). HNSW
+    /// indexes are loaded from their dump when it is current (`load`) and
+    /// saved after a build.
+    async fn build(&self, (e, m, exact): Key, load: bool) -> Result<Entry, QueryError> {
         let dim = self.extractor.dim(e);
-        let count = self.store.count_embeddings(e).await?;
+        let live = self.catalog().windows.len();
+        let pca = match e {
+            Embedding::Pca => self.catalog().pca.clone(),
+            _ => None,
+        };
         let base = self.index_base(e, m);
-        let ix: Arc<dyn AnnIndex> = if exact {
-            let rows = self.store.embeddings(e).await?;
-            let mut ix = ExactIndex::new(m, dim);
-            for (id, v) in rows {
-                ix.add(id as usize, &v);
-            }
-            Arc::new(ix)
-        } else {
-            let generation = self.generation;
-            let params = self.params;
-            let loaded = {
-                let b = base.clone();
-                tokio::task::spawn_blocking(move || HnswIndex::load(&b, m, dim, count, generation))
+        let generation = self.store.generation().await?;
+        let params = self.params;
+        let fail = |err: String| QueryError::Index(base.display().to_string(), err);
+        if !exact && load {
+            let b = base.clone();
+            let loaded =
+                tokio::task::spawn_blocking(move || HnswIndex::load(&b, m, dim, live, generation))
                     .await
-                    .map_err(|err| QueryError::Index(base.display().to_string(), err.to_string()))?
-            };
+                    .map_err(|err| fail(err.to_string()))?;
             match loaded {
                 Ok(Some(mut ix)) => {
                     ix.set_ef_search(params.ef_search);
-                    Arc::new(ix)
+                    let dead = ix.len().saturating_sub(live);
+                    return Ok(Entry {
+                        ix: Arc::new(ix),
+                        pca,
+                        dead: AtomicUsize::new(dead),
+                        dirty: AtomicBool::new(false),
+                    });
                 }
-                other => {
-                    if let Err(err) = other {
-                        eprintln!(
-                            "index {}: unreadable ({err}); rebuilding from the store",
-                            base.display()
-                        );
-                    }
-                    let rows = self.store.embeddings(e).await?;
-                    let built = tokio::task::spawn_blocking(move || {
-                        let items: Vec<(usize, Vec<f32>)> =
-                            rows.into_iter().map(|(id, v)| (id as usize, v)).collect();
-                        let mut ix = HnswIndex::new(m, dim, items.len(), params);
-                        ix.add_batch(&items);
-                        let saved = ix
-                            .save(&base, generation)
-                            .map_err(|err| format!("{}: {err}", base.display()));
-                        (ix, saved)
-                    })
-                    .await
-                    .map_err(|err| QueryError::Index(e.name().into(), err.to_string()))?;
-                    if let Err(err) = built.1 {
-                        eprintln!("index not saved: {err}");
-                    }
-                    Arc::new(built.0)
-                }
+                Ok(None) => {}
+                Err(err) => eprintln!(
+                    "index {}: unreadable ({err}); rebuilding from the store",
+                    base.display()
+                ),
             }
-        };
-        self.indexes
-            .lock()
-            .expect("index cache")
-            .insert((e, m, exact), ix.clone());
-        Ok(ix)
+        }
+        let rows = self.store.embeddings(e).await?;
+        let b = base.clone();
+        let ix: Arc<dyn AnnIndex> = tokio::task::spawn_blocking(move || {
+            let items: Vec<(usize, Vec<f32>)> =
+                rows.into_iter().map(|(id, v)| (id as usize, v)).collect();
+            if exact {
+                let ix = ExactIndex::new(m, dim);
+                for (id, v) in &items {
+                    ix.add(*id, v);
+                }
+                return Arc::new(ix) as Arc<dyn AnnIndex>;
+            }
+            let ix = HnswIndex::new(m, dim, items.len(), params);
+            ix.add_batch(&items);
+            if let Err(err) = ix.save(&b, generation) {
+                eprintln!("index {} not saved: {err}", b.display());
+            }
+            Arc::new(ix)
+        })
+        .await
+        .map_err(|err| fail(err.to_string()))?;
+        Ok(Entry {
+            ix,
+            pca,
+            dead: AtomicUsize::new(0),
+            dirty: AtomicBool::new(false),
+        })
     }
 
-    /// The query windows of a request, as embeddings.
-    fn query_vectors(&self, req: &QueryRequest) -> Result<Vec<Vec<f32>>, QueryError> {
-        let name = req.motion.name.clone();
-        req.motion.validate()?;
+    /// The query windows of a request, as embeddings (CPU work: call on a
+    /// blocking thread). `reuse[i]` is a stored embedding for window `i`.
+    fn query_vectors(
+        &self,
+        req: &QueryRequest,
+        ch: &[[f32; crate::features::CHANNELS]],
+        start: usize,
+        pca: Option<&Pca>,
+        reuse: &HashMap<usize, Vec<f32>>,
+    ) -> Result<Vec<Vec<f32>>, QueryError> {
+        let seg = &ch[start..start + req.frames];
+        window_starts(seg.len(), 32)
+            .into_iter()
+            .map(|s| match reuse.get(&s) {
+                Some(v) => Ok(v.clone()),
+                None => self
+                    .extractor
+                    .embed(req.embedding, &window(seg, s), pca)
+                    .map_err(Into::into),
+            })
+            .collect()
+    }
+
+    /// Check a request's numbers and find its segment's first frame (60 fps).
+    fn segment(&self, req: &QueryRequest, name: &str, len: usize) -> Result<usize, QueryError> {
         if req.k == 0 || req.k > 1000 {
             return Err(
-                MotionError::invalid(&name, "k", format!("{} is not in 1..=1000", req.k)).into(),
+                MotionError::invalid(name, "k", format!("{} is not in 1..=1000", req.k)).into(),
             );
         }
         if req.frames < WINDOW {
             return Err(MotionError::invalid(
-                &name,
+                name,
                 "frames",
                 format!(
                     "{} frames is shorter than a {WINDOW}-frame window",
@@ -201,41 +348,64 @@ impl Searcher {
         }
         if !(req.start_s.is_finite() && req.start_s >= 0.0) {
             return Err(MotionError::invalid(
-                &name,
+                name,
                 "start",
                 format!("{} s is not a start time", req.start_s),
             )
             .into());
         }
-        let ch = channels72(&req.motion)?;
         let start = (req.start_s * FEATURE_FPS).round() as usize;
-        if start + req.frames > ch.len() {
+        if start + req.frames > len {
             return Err(MotionError::invalid(
-                &name,
+                name,
                 "frames",
                 format!(
-                    "segment {start}..{} (60 fps frames) runs past the clip's {} frames ({:.2} s)",
+                    "segment {start}..{} (60 fps frames) runs past the clip's {len} frames ({:.2} s)",
                     start + req.frames,
-                    ch.len(),
-                    ch.len() as f64 / FEATURE_FPS
+                    len as f64 / FEATURE_FPS
                 ),
             )
             .into());
         }
-        let seg = &ch[start..start + req.frames];
-        window_starts(seg.len(), 32)
-            .into_iter()
-            .map(|s| {
-                self.extractor
-                    .embed(req.embedding, &window(seg, s), self.pca.as_ref())
-                    .map_err(Into::into)
-            })
-            .collect()
+        Ok(start)
     }
 
-    pub async fn query(&self, req: &QueryRequest) -> Result<Vec<QueryHit>, QueryError> {
-        let vectors = self.query_vectors(req)?;
-        let ix = self.index(req.embedding, req.metric, req.exact).await?;
+    /// Stored embeddings for the query's windows that fall on the stored
+    /// grid of a stored motion (STFT and DCT; PCA is cheap to recompute).
+    async fn reusable(
+        &self,
+        req: &QueryRequest,
+        id: i64,
+        start: usize,
+    ) -> Result<HashMap<usize, Vec<f32>>, QueryError> {
+        let mut out = HashMap::new();
+        if req.embedding == Embedding::Pca {
+            return Ok(out);
+        }
+        let on_grid: Vec<(usize, i64)> = {
+            let c = self.catalog();
+            let by_start: HashMap<i64, i64> = c
+                .by_motion
+                .get(&id)
+                .into_iter()
+                .flatten()
+                .filter_map(|w| c.windows.get(w).map(|r| (r.start_frame, *w)))
+                .collect();
+            window_starts(req.frames, 32)
+                .into_iter()
+                .filter_map(|s| by_start.get(&((start + s) as i64)).map(|w| (s, *w)))
+                .collect()
+        };
+        for (s, wid) in on_grid {
+            if let Some(v) = self.store.embedding(wid, req.embedding).await? {
+                out.insert(s, v);
+            }
+        }
+        Ok(out)
+    }
+
+    pub async fn query(self: &Arc<Self>, req: QueryRequest) -> Result<Vec<QueryHit>, QueryError> {
+        let entry = self.entry((req.embedding, req.metric, req.exact)).await?;
         let allowed: Option<HashSet<i64>> = if req.filters.is_empty() {
             None
         } else {
@@ -247,38 +417,73 @@ impl Searcher {
                     .collect(),
             )
         };
-        let windows = &self.windows;
-        let filter = |id: usize| {
-            allowed.as_ref().is_none_or(|a| {
-                windows
-                    .get(&(id as i64))
-                    .is_some_and(|w| a.contains(&w.motion_id))
-            })
+        let (stored, reuse) = match &req.source {
+            QuerySource::Stored(id) => {
+                let ch = self
+                    .store
+                    .channels(*id)
+                    .await?
+                    .ok_or(QueryError::NotFound(*id))?;
+                let start = self.segment(&req, &format!("motion {id}"), ch.len())?;
+                let reuse = self.reusable(&req, *id, start).await?;
+                (Some((ch, start)), reuse)
+            }
+            QuerySource::Motion(_) => (None, HashMap::new()),
         };
-        let k = req.k;
+        let me = self.clone();
+        let name = req_name(&req);
+        tokio::task::spawn_blocking(move || {
+            let (ch, start) = match (stored, &req.source) {
+                (Some(s), _) => s,
+                (None, QuerySource::Motion(m)) => {
+                    m.validate()?;
+                    let ch = channels72(m)?;
+                    let start = me.segment(&req, &m.name, ch.len())?;
+                    (ch, start)
+                }
+                (None, QuerySource::Stored(id)) => return Err(QueryError::NotFound(*id)),
+            };
+            let vectors = me.query_vectors(&req, &ch, start, entry.pca.as_deref(), &reuse)?;
+            Ok(me.search(&req, &entry, &vectors, allowed.as_ref()))
+        })
+        .await
+        .map_err(|err| QueryError::Index(name, err.to_string()))?
+    }
+
+    /// Search every query vector, keep each window's best distance, and
+    /// give the `k` best as hits (deleted windows and filtered motions are
+    /// never seen).
+    fn search(
+        &self,
+        req: &QueryRequest,
+        entry: &Entry,
+        vectors: &[Vec<f32>],
+        allowed: Option<&HashSet<i64>>,
+    ) -> Vec<QueryHit> {
+        let catalog = self.catalog();
+        let windows = &catalog.windows;
+        let filter = |id: usize| {
+            windows
+                .get(&(id as i64))
+                .is_some_and(|w| allowed.is_none_or(|a| a.contains(&w.motion_id)))
+        };
+        let filtered = allowed.is_some() || entry.dead.load(Ordering::Acquire) > 0;
         let mut best: HashMap<usize, f32> = HashMap::new();
-        for q in &vectors {
-            for Hit { id, distance } in ix.search(
-                q,
-                k,
-                if allowed.is_some() {
-                    Some(&filter)
-                } else {
-                    None
-                },
-            ) {
+        for q in vectors {
+            let f: Option<&(dyn Fn(usize) -> bool + Sync)> =
+                if filtered { Some(&filter) } else { None };
+            for Hit { id, distance } in entry.ix.search(q, req.k, f) {
                 let e = best.entry(id).or_insert(f32::INFINITY);
                 *e = e.min(distance);
             }
         }
         let mut hits: Vec<(usize, f32)> = best.into_iter().collect();
         hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-        hits.truncate(k);
-        Ok(hits
-            .into_iter()
+        hits.truncate(req.k);
+        hits.into_iter()
             .filter_map(|(id, d)| {
-                let w = self.windows.get(&(id as i64))?;
-                let m = self.motions.get(&w.motion_id)?;
+                let w = windows.get(&(id as i64))?;
+                let m = catalog.motions.get(&w.motion_id)?;
                 Some(QueryHit {
                     motion_id: m.id,
                     source_path: m.source_path.clone(),
@@ -288,6 +493,217 @@ impl Searcher {
                     labels: m.labels.clone(),
                 })
             })
-            .collect())
+            .collect()
+    }
+
+    /// Store one file's bytes and put its windows into every built index
+    /// before answering. Idempotent by content hash; labels sent with a file
+    /// already stored are merged into its labels.
+    pub async fn ingest(
+        &self,
+        name: &str,
+        bytes: Vec<u8>,
+        opts: &IngestOptions,
+    ) -> Result<Result<IngestOutcome, MotionError>, QueryError> {
+        let hash = content_hash(&bytes);
+        let _w = self.writes.lock().await;
+        if let Some(id) = self.store.motion_by_hash(&hash).await? {
+            let mut merged_labels = None;
+            if !opts.extra_labels.is_empty() {
+                merged_labels = self.store.merge_labels(id, &opts.extra_labels).await?;
+                if let (Some(l), Some(row)) = (
+                    &merged_labels,
+                    self.catalog
+                        .write()
+                        .expect("catalog lock")
+                        .motions
+                        .get_mut(&id),
+                ) {
+                    row.labels = l.clone();
+                }
+            }
+            return Ok(Ok(IngestOutcome {
+                stored: Stored::Existing { motion_id: id },
+                merged_labels,
+            }));
+        }
+        let pca = self.catalog().pca.clone();
+        let (opts2, name2) = (opts.clone(), name.to_string());
+        let prepared = tokio::task::spawn_blocking(move || {
+            ingest::prepare_with(&name2, bytes, hash, &opts2, pca.as_deref())
+        })
+        .await
+        .map_err(|e| QueryError::Index(name.into(), format!("worker failed: {e}")))?;
+        let m = match prepared {
+            Ok(m) => m,
+            Err(e) => return Ok(Err(e)),
+        };
+        let (motion_id, window_ids) = self.store.insert_motion(&m).await?;
+        let row = self
+            .store
+            .motion(motion_id)
+            .await?
+            .ok_or(QueryError::NotFound(motion_id))?;
+        let refs: Vec<(i64, WindowRef)> = window_ids
+            .iter()
+            .zip(&m.windows)
+            .map(|(id, w)| {
+                (
+                    *id,
+                    WindowRef {
+                        motion_id,
+                        start_frame: w.start_frame as i64,
+                    },
+                )
+            })
+            .collect();
+        // Into the indexes first, then the catalog: a query that sees the
+        // new windows also finds them in the index.
+        let built = self.built();
+        let windows = m.windows;
+        let ids = window_ids.clone();
+        tokio::task::spawn_blocking(move || {
+            for ((e, _, _), entry) in built {
+                let items: Vec<(usize, Vec<f32>)> = ids
+                    .iter()
+                    .zip(&windows)
+                    .filter_map(|(id, w)| {
+                        let v = w.embeddings.iter().find(|(k, _)| *k == e).map(|(_, v)| v)?;
+                        Some((*id as usize, v.clone()))
+                    })
+                    .collect();
+                for (id, v) in &items {
+                    entry.ix.add(*id, v);
+                }
+                entry.dirty.store(true, Ordering::Release);
+            }
+        })
+        .await
+        .map_err(|e| QueryError::Index(name.into(), format!("worker failed: {e}")))?;
+        self.catalog
+            .write()
+            .expect("catalog lock")
+            .add_motion(row, &refs);
+        self.wake.notify_one();
+        Ok(Ok(IngestOutcome {
+            stored: Stored::New {
+                motion_id,
+                windows: window_ids.len(),
+            },
+            merged_labels: None,
+        }))
+    }
+
+    /// Remove a stored motion; its windows vanish from the next query.
+    /// `false` for an unknown id.
+    pub async fn delete(&self, id: i64) -> Result<bool, QueryError> {
+        let _w = self.writes.lock().await;
+        if !self.store.delete_motion(id).await? {
+            return Ok(false);
+        }
+        let gone = {
+            let mut c = self.catalog.write().expect("catalog lock");
+            c.motions.remove(&id);
+            let ids = c.by_motion.remove(&id).unwrap_or_default();
+            for w in &ids {
+                c.windows.remove(w);
+            }
+            ids.len()
+        };
+        for (_, entry) in self.built() {
+            entry.dead.fetch_add(gone, Ordering::AcqRel);
+            entry.dirty.store(true, Ordering::Release);
+        }
+        self.wake.notify_one();
+        Ok(true)
+    }
+
+    /// The slow work writes leave behind, one job at a time while queries
+    /// go on: refit PCA when [`ingest::pca_due`] (its indexes rebuilt on
+    /// the new basis, then swapped in), rebuild indexes past
+    /// [`COMPACT_SHARE`] deleted points, and save every changed HNSW dump
+    /// (the rest get the store's generation in their meta).
+    pub async fn maintain(&self) -> Result<(), QueryError> {
+        let _w = self.writes.lock().await;
+        if ingest::pca_due(&self.store).await? {
+            let fitted = ingest::refit_pca(&self.store).await?;
+            self.catalog.write().expect("catalog lock").pca = fitted.map(|(p, _)| Arc::new(p));
+            for (key, _) in self
+                .built()
+                .into_iter()
+                .filter(|(k, _)| k.0 == Embedding::Pca)
+            {
+                let fresh = Arc::new(self.build(key, false).await?);
+                self.indexes.lock().expect("index map").insert(key, fresh);
+            }
+        }
+        for (key, entry) in self.built() {
+            let dead = entry.dead.load(Ordering::Acquire);
+            if dead > 0 && dead as f64 > COMPACT_SHARE * entry.ix.len() as f64 {
+                let fresh = Arc::new(self.build(key, false).await?);
+                self.indexes.lock().expect("index map").insert(key, fresh);
+            }
+        }
+        let generation = self.store.generation().await?;
+        for ((e, m, exact), entry) in self.built() {
+            if exact {
+                continue;
+            }
+            let base = self.index_base(e, m);
+            let saved = if entry.dirty.swap(false, Ordering::AcqRel) {
+                let ix = entry.ix.clone();
+                tokio::task::spawn_blocking(move || save_any(&*ix, &base, generation))
+                    .await
+                    .map_err(|err| QueryError::Index(e.name().into(), err.to_string()))?
+            } else {
+                HnswIndex::touch(&base, generation)
+            };
+            if let Err(err) = saved {
+                eprintln!("index {}-{}: not saved ({err})", e.name(), m.name());
+            }
+        }
+        Ok(())
+    }
+
+    /// Run [`Searcher::maintain`] in the background after writes (a quiet
+    /// spell of `debounce` first, so a burst of writes costs one job). The
+    /// task ends when the searcher is dropped.
+    pub fn spawn_maintenance(self: &Arc<Self>, debounce: std::time::Duration) {
+        let wake = self.wake.clone();
+        let me = Arc::downgrade(self);
+        tokio::spawn(async move {
+            loop {
+                let woke =
+                    tokio::time::timeout(std::time::Duration::from_secs(30), wake.notified())
+                        .await
+                        .is_ok();
+                if me.strong_count() == 0 {
+                    break;
+                }
+                if !woke {
+                    continue;
+                }
+                tokio::time::sleep(debounce).await;
+                let Some(s) = me.upgrade() else { break };
+                if let Err(err) = s.maintain().await {
+                    eprintln!("index maintenance failed: {err}");
+                }
+            }
+        });
+    }
+}
+
+/// Save an index when it is an HNSW one.
+fn save_any(ix: &dyn AnnIndex, base: &std::path::Path, generation: i64) -> anyhow::Result<()> {
+    match ix.as_hnsw() {
+        Some(h) => h.save(base, generation).map(|_| ()),
+        None => Ok(()),
+    }
+}
+
+fn req_name(req: &QueryRequest) -> String {
+    match &req.source {
+        QuerySource::Motion(m) => m.name.clone(),
+        QuerySource::Stored(id) => format!("motion {id}"),
     }
 }

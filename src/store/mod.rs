@@ -195,8 +195,9 @@ impl Store {
     }
 
     /// Insert a motion, its channels, windows and embeddings in one
-    /// transaction. Returns the motion id.
-    pub async fn insert_motion(&self, m: &NewMotion) -> Result<i64> {
+    /// transaction. Returns the motion id and its window ids (in the order
+    /// of `m.windows`).
+    pub async fn insert_motion(&self, m: &NewMotion) -> Result<(i64, Vec<i64>)> {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
         let labels = serde_json::to_string(&m.labels).unwrap_or_else(|_| "{}".into());
         let id: i64 = sqlx::query_scalar(
@@ -243,6 +244,7 @@ impl Store {
                 .await
                 .map_err(|e| self.db(e))?;
         }
+        let mut window_ids = Vec::with_capacity(m.windows.len());
         for w in &m.windows {
             let wid: i64 = sqlx::query_scalar("INSERT INTO windows (motion_id, start_frame, frames) VALUES (?, ?, ?) RETURNING id")
                 .bind(id)
@@ -256,10 +258,55 @@ impl Store {
                     .await
                     .map_err(|e| self.db(e))?;
             }
+            window_ids.push(wid);
         }
         bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
         tx.commit().await.map_err(|e| self.db(e))?;
-        Ok(id)
+        Ok((id, window_ids))
+    }
+
+    /// Merge labels into a stored motion's (given values win). Returns the
+    /// labels as stored afterwards, or `None` for an unknown id.
+    pub async fn merge_labels(&self, id: i64, labels: &Labels) -> Result<Option<Labels>> {
+        let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
+        let Some(current): Option<String> =
+            sqlx::query_scalar("SELECT labels FROM motions WHERE id = ?")
+                .bind(id)
+                .fetch_optional(&mut *tx)
+                .await
+                .map_err(|e| self.db(e))?
+        else {
+            return Ok(None);
+        };
+        let mut merged: Labels = serde_json::from_str(&current)
+            .map_err(|e| self.corrupt("motions.labels", e.to_string()))?;
+        if labels.iter().all(|(k, v)| merged.get(k) == Some(v)) {
+            return Ok(Some(merged));
+        }
+        merged.extend(labels.clone());
+        sqlx::query("UPDATE motions SET labels = ? WHERE id = ?")
+            .bind(serde_json::to_string(&merged).unwrap_or_else(|_| "{}".into()))
+            .bind(id)
+            .execute(&mut *tx)
+            .await
+            .map_err(|e| self.db(e))?;
+        sqlx::query("DELETE FROM motion_labels WHERE motion_id = ?")
+            .bind(id)
+            .execute(&mut *tx)
+            .await
+            .map_err(|e| self.db(e))?;
+        for (k, v) in &merged {
+            sqlx::query("INSERT INTO motion_labels (motion_id, kind, value) VALUES (?, ?, ?)")
+                .bind(id)
+                .bind(k)
+                .bind(v)
+                .execute(&mut *tx)
+                .await
+                .map_err(|e| self.db(e))?;
+        }
+        bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
+        tx.commit().await.map_err(|e| self.db(e))?;
+        Ok(Some(merged))
     }
 
     /// Remove a motion and everything derived from it.
@@ -409,23 +456,54 @@ impl Store {
                 .await
                 .map_err(|e| self.db(e))?;
         rows.into_iter()
-            .map(|(id, b)| {
-                let f = blob_to_f32s(&b)
-                    .filter(|f| f.len() % CHANNELS == 0)
-                    .ok_or_else(|| {
-                        self.corrupt(
-                            "motion_channels.data",
-                            format!("motion {id}: not a [frames][72] f32 matrix"),
-                        )
-                    })?;
-                Ok((
-                    id,
-                    f.chunks_exact(CHANNELS)
-                        .map(|c| c.try_into().expect("72"))
-                        .collect(),
-                ))
-            })
+            .map(|(id, b)| Ok((id, self.decode_channels(id, &b)?)))
             .collect()
+    }
+
+    /// One motion's canonical channels (`[frames][72]` at 60 fps), as
+    /// ingest stored them; `None` for an unknown id.
+    pub async fn channels(&self, motion_id: i64) -> Result<Option<Vec<[f32; CHANNELS]>>> {
+        let row: Option<Vec<u8>> =
+            sqlx::query_scalar("SELECT data FROM motion_channels WHERE motion_id = ?")
+                .bind(motion_id)
+                .fetch_optional(&self.pool)
+                .await
+                .map_err(|e| self.db(e))?;
+        row.map(|b| self.decode_channels(motion_id, &b)).transpose()
+    }
+
+    fn decode_channels(&self, motion_id: i64, b: &[u8]) -> Result<Vec<[f32; CHANNELS]>> {
+        let f = blob_to_f32s(b)
+            .filter(|f| f.len() % CHANNELS == 0)
+            .ok_or_else(|| {
+                self.corrupt(
+                    "motion_channels.data",
+                    format!("motion {motion_id}: not a [frames][72] f32 matrix"),
+                )
+            })?;
+        Ok(f.chunks_exact(CHANNELS)
+            .map(|c| c.try_into().expect("72"))
+            .collect())
+    }
+
+    /// One window's stored embedding of one kind.
+    pub async fn embedding(&self, window_id: i64, kind: Embedding) -> Result<Option<Vec<f32>>> {
+        let row: Option<Vec<u8>> =
+            sqlx::query_scalar("SELECT vector FROM embeddings WHERE window_id = ? AND kind = ?")
+                .bind(window_id)
+                .bind(kind.name())
+                .fetch_optional(&self.pool)
+                .await
+                .map_err(|e| self.db(e))?;
+        row.map(|b| {
+            blob_to_f32s(&b).ok_or_else(|| {
+                self.corrupt(
+                    "embeddings.vector",
+                    format!("window {window_id}: blob is not f32s"),
+                )
+            })
+        })
+        .transpose()
     }
 
     /// Replace every embedding of `kind` and store the model that made them,
