@@ -721,6 +721,7 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
     // Writes need the token: none, wrong, right; a second ingest of the same
     // bytes writes nothing.
     let b = ingest.clone();
+    let b_labels = ingest["labels"].clone();
     let (none, wrong, first, again) = tokio::task::spawn_blocking(move || {
         (
             http_as(h, "POST", "/v1/motions", Some(&b), None),
@@ -739,7 +740,12 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
     let pkl_id = first.1["motion_id"].as_i64().unwrap();
     assert!(first.1["windows"].as_u64().unwrap() > 10, "{}", first.1);
     assert_eq!(again.0, 200, "{}", again.1);
-    assert_eq!(again.1, json!({"status": "existing", "motion_id": pkl_id}));
+    assert_eq!(again.1["status"], "existing");
+    assert_eq!(again.1["motion_id"], pkl_id);
+    // The labels sent with it are merged into the stored ones and given back.
+    for (k, v) in b_labels.as_object().unwrap() {
+        assert_eq!(again.1["merged_labels"][k], *v, "{}", again.1);
+    }
 
     // gRPC: a BVH upload and an inline motion.
     let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
@@ -913,8 +919,9 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
     })
     .await
     .unwrap();
-    assert_eq!(qs, 400, "{qr}");
+    assert_eq!(qs, 404, "{qr}");
     assert_eq!(qr["error"]["field"], "motion.id");
+    assert_eq!(qr["error"]["code"], "not_found");
 
     // Interpolate and lowpass on stored AIST++ and Bandai motions: REST and
     // gRPC give the same output, and the same error for a bad objective.

@@ -69,7 +69,7 @@ impl IntoResponse for ApiError {
         let status =
             StatusCode::from_u16(self.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
         let body = match &self {
-            ApiError::Invalid { field, reason } => {
+            ApiError::Invalid { field, reason } | ApiError::Missing { field, reason } => {
                 json!({"error": {"code": self.kind(), "field": field, "reason": reason}})
             }
             other => json!({"error": {"code": other.kind(), "reason": other.to_string()}}),

@@ -42,6 +42,9 @@ pub enum ApiError {
     Invalid { field: String, reason: String },
     #[error("not found: {0}")]
     NotFound(String),
+    /// A request field names something that does not exist (a stored id).
+    #[error("{field}: {reason}")]
+    Missing { field: String, reason: String },
     /// Every worker permit is taken: try again later.
     #[error("busy: {0}")]
     Busy(String),
@@ -69,7 +72,7 @@ impl ApiError {
     pub fn http_status(&self) -> u16 {
         match self {
             ApiError::Invalid { .. } => 400,
-            ApiError::NotFound(_) => 404,
+            ApiError::NotFound(_) | ApiError::Missing { .. } => 404,
             ApiError::Busy(_) => 429,
             ApiError::Unavailable(_) => 503,
             ApiError::Unauthenticated(_) => 401,
@@ -81,7 +84,7 @@ impl ApiError {
     pub fn grpc_code(&self) -> tonic::Code {
         match self {
             ApiError::Invalid { .. } => tonic::Code::InvalidArgument,
-            ApiError::NotFound(_) => tonic::Code::NotFound,
+            ApiError::NotFound(_) | ApiError::Missing { .. } => tonic::Code::NotFound,
             ApiError::Busy(_) => tonic::Code::ResourceExhausted,
             ApiError::Unavailable(_) => tonic::Code::Unavailable,
             ApiError::Unauthenticated(_) => tonic::Code::Unauthenticated,
@@ -92,7 +95,7 @@ impl ApiError {
     pub fn kind(&self) -> &'static str {
         match self {
             ApiError::Invalid { .. } => "invalid_argument",
-            ApiError::NotFound(_) => "not_found",
+            ApiError::NotFound(_) | ApiError::Missing { .. } => "not_found",
             ApiError::Busy(_) => "resource_exhausted",
             ApiError::Unavailable(_) => "unavailable",
             ApiError::Unauthenticated(_) => "unauthenticated",
@@ -126,7 +129,10 @@ impl From<QueryError> for ApiError {
     fn from(e: QueryError) -> Self {
         match e {
             QueryError::Motion(m) => m.into(),
-            QueryError::NotFound(id) => ApiError::NotFound(format!("motion {id}")),
+            QueryError::NotFound(id) => ApiError::Missing {
+                field: "motion.id".into(),
+                reason: format!("no stored motion {id}"),
+            },
             QueryError::Store(e) => ApiError::Internal(e.to_string()),
             other => ApiError::Internal(other.to_string()),
         }
@@ -266,8 +272,9 @@ impl AppState {
                 load_motion(&self.store, id)
                     .await
                     .map_err(|e| prefix(field, e.into()))?
-                    .ok_or_else(|| {
-                        ApiError::NotFound(format!("{field}.id: no stored motion {id}"))
+                    .ok_or_else(|| ApiError::Missing {
+                        field: format!("{field}.id"),
+                        reason: format!("no stored motion {id}"),
                     })?
                     .1
             }
