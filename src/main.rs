@@ -15,6 +15,7 @@ use choreo::service::ingest::IngestOptions;
 use choreo::service::query::{QueryRequest, Searcher};
 use choreo::store::Store;
 use clap::{Parser, Subcommand, ValueEnum};
+use cli::write_npy_f32;
 use serde_json::json;
 use std::collections::BTreeMap;
 use std::io::Read;
@@ -282,6 +283,11 @@ enum BenchCmd {
         /// most of an hour).
         #[arg(long, requires = "dump")]
         dump_only: bool,
+        /// Besides --ef-search: also the smallest efSearch whose recall@10
+        /// on these queries reaches this (0 = off), as FAISS's side of
+        /// scripts/bench_index.sh is run.
+        #[arg(long, default_value_t = 0.99)]
+        target_recall: f64,
     },
     /// DP keyframe selection time on a clip looped to --frames frames (60 fps):
     /// per 4/4 measure at --bpm, and over the whole clip (exact).
@@ -657,6 +663,7 @@ fn run(cli: Cli) -> Result<()> {
                     m,
                     ef_construction,
                     dump_only,
+                    target_recall,
                 },
         } => {
             let metric = Metric::parse(&metric).with_context(|| format!("--metric: '{metric}'"))?;
@@ -665,15 +672,16 @@ fn run(cli: Cli) -> Result<()> {
                 ef_construction,
                 ef_search,
             };
-            bench_index(
-                &sizes,
+            cli::bench_index::run(&cli::bench_index::Bench {
+                sizes,
                 dim,
                 queries,
                 metric,
-                dump.as_deref(),
+                dump,
                 params,
                 dump_only,
-            )
+                target_recall,
+            })
         }
         Cmd::Bench {
             cmd: BenchCmd::Embed { data, dump },
@@ -967,106 +975,6 @@ fn interpolate_cmd(
             r.steps,
             seconds,
             out.display()
-        );
-    }
-    Ok(())
-}
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    sorted[((sorted.len() as f64 - 1.0) * p).round() as usize]
-}
-
-fn write_npy_f32(path: &std::path::Path, rows: &[Vec<f32>]) -> Result<()> {
-    let a = choreo::motion::io::npy::NdArray {
-        shape: vec![rows.len(), rows.first().map_or(0, |r| r.len())],
-        data: rows
-            .iter()
-            .flat_map(|r| r.iter().map(|&x| x as f64))
-            .collect(),
-    };
-    std::fs::write(path, a.to_npy(true)).with_context(|| path.display().to_string())
-}
-
-fn bench_index(
-    sizes: &[usize],
-    dim: usize,
-    nq: usize,
-    metric: Metric,
-    dump: Option<&std::path::Path>,
-    params: HnswParams,
-    dump_only: bool,
-) -> Result<()> {
-    use choreo::index::hnsw::HnswIndex;
-    use choreo::index::{recall, synthetic_latent, AnnIndex, ExactIndex};
-    use std::time::Instant;
-    let queries = synthetic_latent(nq, dim, 99);
-    if let Some(d) = dump {
-        std::fs::create_dir_all(d)?;
-        write_npy_f32(&d.join("queries.npy"), &queries)?;
-    }
-    for &n in sizes {
-        let t = Instant::now();
-        let data = synthetic_latent(n, dim, 1);
-        let gen_s = t.elapsed().as_secs_f64();
-        let items: Vec<(usize, Vec<f32>)> = data.into_iter().enumerate().collect();
-        let exact = ExactIndex::new(metric, dim);
-        for (i, v) in &items {
-            exact.add(*i, v);
-        }
-        let mut lat_e = Vec::new();
-        let mut truth = Vec::new();
-        for q in &queries {
-            let t = Instant::now();
-            truth.push(exact.search(q, 10, None));
-            lat_e.push(t.elapsed().as_secs_f64() * 1e3);
-        }
-        drop(exact);
-        if let Some(d) = dump {
-            write_npy_f32(
-                &d.join(format!("base_{n}.npy")),
-                &items.iter().map(|(_, v)| v.clone()).collect::<Vec<_>>(),
-            )?;
-            let gt: Vec<Vec<f32>> = truth
-                .iter()
-                .map(|h| h.iter().map(|x| x.id as f32).collect())
-                .collect();
-            write_npy_f32(&d.join(format!("gt_{n}.npy")), &gt)?;
-        }
-        if dump_only {
-            lat_e.sort_by(f64::total_cmp);
-            println!(
-                "{}",
-                json!({"n": n, "dim": dim, "metric": metric, "queries": nq, "generate_s": gen_s,
-                       "exact": {"p50_ms": percentile(&lat_e, 0.5), "p95_ms": percentile(&lat_e, 0.95)}})
-            );
-            continue;
-        }
-        let t = Instant::now();
-        let h = HnswIndex::new(metric, dim, n, params);
-        h.add_batch(&items);
-        let build_s = t.elapsed().as_secs_f64();
-        drop(items);
-        let mut lat_h = Vec::new();
-        let mut rec = 0.0;
-        for (q, tr) in queries.iter().zip(&truth) {
-            let t = Instant::now();
-            let r = h.search(q, 10, None);
-            lat_h.push(t.elapsed().as_secs_f64() * 1e3);
-            rec += recall(tr, &r);
-        }
-        for l in [&mut lat_e, &mut lat_h] {
-            l.sort_by(f64::total_cmp);
-        }
-        let qps = |l: &[f64]| 1e3 * l.len() as f64 / l.iter().sum::<f64>();
-        println!(
-            "{}",
-            json!({
-                "n": n, "dim": dim, "metric": metric, "queries": nq, "generate_s": gen_s,
-                "exact": {"p50_ms": percentile(&lat_e, 0.5), "p95_ms": percentile(&lat_e, 0.95), "qps_1thread": qps(&lat_e)},
-                "hnsw": {"m": params.m, "ef_construction": params.ef_construction, "ef_search": params.ef_search, "build_s": build_s,
-                         "p50_ms": percentile(&lat_h, 0.5), "p95_ms": percentile(&lat_h, 0.95), "qps_1thread": qps(&lat_h),
-                         "recall_at_10": rec / nq as f64},
-            })
         );
     }
     Ok(())

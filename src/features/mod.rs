@@ -15,6 +15,7 @@
 pub mod interpolate;
 pub mod lda;
 pub mod pca;
+pub mod project;
 
 use crate::motion::retarget::{retarget_to_smpl13, JointMap};
 use crate::motion::{Motion, MotionError};
@@ -186,6 +187,8 @@ pub struct Extractor {
     fft: Arc<dyn rustfft::Fft<f32>>,
     hann: Vec<f32>,
     dct: Arc<dyn rustdct::TransformType2And3<f32>>,
+    /// The first 16 orthonormal DCT-II functions as one blocked projection.
+    dct16: Arc<project::Projection>,
 }
 
 impl Extractor {
@@ -199,11 +202,27 @@ impl Extractor {
             })
             .collect();
         let dct = DctPlanner::new().plan_dct2(WINDOW);
+        // Orthonormal DCT-II: X_k = s_k Σ_t x_t cos(π k (2t + 1) / 2N).
+        let n = WINDOW as f64;
+        let rows: Vec<f32> = (0..COEFFS)
+            .flat_map(|k| {
+                let s = if k == 0 {
+                    (1.0 / n).sqrt()
+                } else {
+                    (2.0 / n).sqrt()
+                };
+                (0..WINDOW).map(move |t| {
+                    (s * (std::f64::consts::PI * k as f64 * (2 * t + 1) as f64 / (2.0 * n)).cos())
+                        as f32
+                })
+            })
+            .collect();
         Ok(Extractor {
             stft,
             fft,
             hann,
             dct,
+            dct16: Arc::new(project::Projection::new(&rows, None)),
         })
     }
 
@@ -249,12 +268,10 @@ impl Extractor {
         out
     }
 
-    /// First 16 orthonormal DCT-II coefficients per channel, `[72][16]`.
+    /// First 16 orthonormal DCT-II coefficients per channel, `[72][16]`
+    /// (one blocked product with the 16 basis functions, not a full DCT).
     pub fn dct(&self, win: &[f32]) -> Vec<f32> {
-        let full = self.dct_full(win);
-        (0..CHANNELS)
-            .flat_map(|c| full[c * WINDOW..c * WINDOW + COEFFS].to_vec())
-            .collect()
+        self.dct16.apply(win)
     }
 
     /// The embedding of one window. PCA needs a fitted model.

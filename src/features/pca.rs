@@ -7,7 +7,7 @@ use super::{CHANNELS, COEFFS, WINDOW};
 use crate::motion::MotionError;
 use serde::{Deserialize, Serialize};
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Pca {
     /// Mean series, `[128]`.
     pub mean: Vec<f32>,
@@ -17,6 +17,21 @@ pub struct Pca {
     pub explained_variance: Vec<f64>,
     /// How many series it was fitted on.
     pub samples: usize,
+    /// The components as one blocked projection, mean folded out (made on
+    /// first use).
+    #[serde(skip)]
+    projection: std::sync::OnceLock<super::project::Projection>,
+}
+
+impl PartialEq for Pca {
+    fn eq(&self, o: &Pca) -> bool {
+        (
+            &self.mean,
+            &self.components,
+            &self.explained_variance,
+            self.samples,
+        ) == (&o.mean, &o.components, &o.explained_variance, o.samples)
+    }
 }
 
 /// Running sums for the covariance, so windows can stream in.
@@ -94,6 +109,7 @@ impl PcaAccumulator {
             components,
             explained_variance: explained,
             samples: self.n,
+            projection: Default::default(),
         })
     }
 }
@@ -109,19 +125,9 @@ impl Pca {
 
     /// Project each channel's series: `[72][16]`.
     pub fn project_window(&self, win: &[f32]) -> Vec<f32> {
-        let mut out = Vec::with_capacity(CHANNELS * COEFFS);
-        let mut centred = [0f32; WINDOW];
-        for c in 0..CHANNELS {
-            let x = &win[c * WINDOW..(c + 1) * WINDOW];
-            for t in 0..WINDOW {
-                centred[t] = x[t] - self.mean[t];
-            }
-            for k in 0..COEFFS {
-                let comp = &self.components[k * WINDOW..(k + 1) * WINDOW];
-                out.push(comp.iter().zip(&centred).map(|(a, b)| a * b).sum());
-            }
-        }
-        out
+        self.projection
+            .get_or_init(|| super::project::Projection::new(&self.components, Some(&self.mean)))
+            .apply(win)
     }
 
     pub fn validate(&self) -> Result<(), MotionError> {

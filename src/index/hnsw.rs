@@ -82,6 +82,9 @@ pub struct IndexMeta {
     pub params: HnswParams,
     /// The basename hnsw_rs wrote (it may add a suffix).
     pub dump_basename: String,
+    /// Recall@10 at `params.ef_search`, measured when it was calibrated.
+    #[serde(default)]
+    pub recall_at_10: Option<f64>,
 }
 
 pub struct HnswIndex {
@@ -91,6 +94,8 @@ pub struct HnswIndex {
     /// point; the caller's filter hides them until a rebuild).
     count: AtomicUsize,
     params: HnswParams,
+    /// Recall@10 at `params.ef_search` from [`HnswIndex::calibrate`].
+    recall_at_10: Option<f64>,
     graph: Graph,
 }
 
@@ -119,6 +124,7 @@ impl HnswIndex {
             dim,
             count: AtomicUsize::new(0),
             params,
+            recall_at_10: None,
             graph,
         }
     }
@@ -128,6 +134,80 @@ impl HnswIndex {
     }
     pub fn set_ef_search(&mut self, ef: usize) {
         self.params.ef_search = ef.max(1);
+    }
+
+    /// Recall@10 at the current `ef_search`, when calibrated.
+    pub fn recall_at_10(&self) -> Option<f64> {
+        self.recall_at_10
+    }
+
+    /// Build over `items` with `ef_search` chosen for a target recall:
+    /// up to `sample` of the items (evenly spaced) are held out, the rest
+    /// inserted, the held-out ones used as queries by [`HnswIndex::calibrate`]
+    /// (unseen points, as a user's new clip is), and then inserted too.
+    /// Returns the index with its measured (ef, recall).
+    pub fn build_calibrated(
+        metric: Metric,
+        dim: usize,
+        params: HnswParams,
+        items: &[(usize, Vec<f32>)],
+        sample: usize,
+        target: f64,
+    ) -> HnswIndex {
+        let mut ix = HnswIndex::new(metric, dim, items.len(), params);
+        let step = (items.len() / sample.max(1)).max(2);
+        if items.len() < 4 * sample.max(1) || sample == 0 {
+            ix.add_batch(items);
+            return ix;
+        }
+        let (held, rest): (Vec<_>, Vec<_>) = items
+            .iter()
+            .enumerate()
+            .partition(|(i, _)| i % step == step / 2);
+        let rest: Vec<(usize, Vec<f32>)> = rest.into_iter().map(|(_, x)| x.clone()).collect();
+        let held: Vec<(usize, Vec<f32>)> = held.into_iter().map(|(_, x)| x.clone()).collect();
+        ix.add_batch(&rest);
+        let queries: Vec<Vec<f32>> = held.iter().map(|(_, v)| v.clone()).collect();
+        ix.calibrate(&queries, &rest, target);
+        ix.add_batch(&held);
+        ix
+    }
+
+    /// Choose `ef_search`: the smallest on a ladder (10 … 1,024) whose mean
+    /// recall@10 for `queries` against exact search over `indexed` (what
+    /// the graph holds now) reaches `target`. Returns (ef, recall); when no
+    /// ef reaches the target the largest is kept.
+    pub fn calibrate(
+        &mut self,
+        queries: &[Vec<f32>],
+        indexed: &[(usize, Vec<f32>)],
+        target: f64,
+    ) -> (usize, f64) {
+        let k = 10.min(indexed.len());
+        if k == 0 || queries.is_empty() {
+            return (self.params.ef_search, 1.0);
+        }
+        let truth = exact_neighbours(self.metric, indexed, queries, k);
+        let ladder = [
+            10, 16, 24, 32, 48, 64, 96, 128, 192, 256, 384, 512, 768, 1024,
+        ];
+        let mut chosen = (ladder[ladder.len() - 1], 0.0);
+        for ef in ladder {
+            self.params.ef_search = ef;
+            let r: f64 = queries
+                .iter()
+                .zip(&truth)
+                .map(|(q, t)| super::recall(t, &self.search(q, k, None)))
+                .sum::<f64>()
+                / queries.len() as f64;
+            chosen = (ef, r);
+            if r >= target {
+                break;
+            }
+        }
+        self.params.ef_search = chosen.0;
+        self.recall_at_10 = Some(chosen.1);
+        chosen
     }
 
     /// Insert many raw vectors at once, using every core. Searches may run
@@ -174,6 +254,7 @@ impl HnswIndex {
             generation,
             params: self.params,
             dump_basename: dumped.clone(),
+            recall_at_10: self.recall_at_10,
         };
         let tmp = meta_path(base).with_extension("json.partial");
         std::fs::write(&tmp, serde_json::to_vec_pretty(&meta)?)?;
@@ -245,6 +326,7 @@ impl HnswIndex {
             dim,
             count: AtomicUsize::new(meta.count),
             params: meta.params,
+            recall_at_10: meta.recall_at_10,
             graph,
         };
         let n = match &ix.graph {
@@ -257,6 +339,43 @@ impl HnswIndex {
         }
         Ok(Some(ix))
     }
+}
+
+/// The exact `k` nearest of each query among `items`, on every core.
+fn exact_neighbours(
+    metric: Metric,
+    items: &[(usize, Vec<f32>)],
+    queries: &[Vec<f32>],
+    k: usize,
+) -> Vec<Vec<Hit>> {
+    let prepared: Vec<Vec<f32>> = queries.iter().map(|q| metric.prepare(q)).collect();
+    let norms: Vec<f32> = match metric {
+        Metric::Cosine => items.iter().map(|(_, v)| super::dot(v, v).sqrt()).collect(),
+        Metric::Euclidean => Vec::new(),
+    };
+    let one = |q: &Vec<f32>| -> Vec<Hit> {
+        let mut top = Vec::with_capacity(k + 1);
+        for (i, (id, v)) in items.iter().enumerate() {
+            let distance = match metric {
+                Metric::Cosine => 1.0 - super::dot(q, v) / norms[i].max(f32::MIN_POSITIVE),
+                Metric::Euclidean => super::l2(q, v),
+            };
+            super::push_top(&mut top, Hit { id: *id, distance }, k);
+        }
+        top
+    };
+    let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
+    let chunk = prepared.len().div_ceil(threads).max(1);
+    std::thread::scope(|s| {
+        let handles: Vec<_> = prepared
+            .chunks(chunk)
+            .map(|c| s.spawn(move || c.iter().map(one).collect::<Vec<_>>()))
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().expect("exact search thread"))
+            .collect()
+    })
 }
 
 pub fn meta_path(base: &Path) -> PathBuf {
@@ -339,17 +458,28 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         for metric in Metric::ALL {
             let exact = ExactIndex::new(metric, dim);
-            let h = HnswIndex::new(metric, dim, data.len(), HnswParams::default());
             let items: Vec<(usize, Vec<f32>)> = data.iter().cloned().enumerate().collect();
             for (i, v) in &items {
                 exact.add(*i, v);
             }
-            h.add_batch(&items);
+            // ef_search chosen for recall@10 >= 0.99 on held-out stored
+            // vectors, measured against exact search, and kept in the meta.
+            let h =
+                HnswIndex::build_calibrated(metric, dim, HnswParams::default(), &items, 100, 0.99);
+            assert_eq!(h.len(), items.len());
+            let (ef, r) = (h.params().ef_search, h.recall_at_10().unwrap());
+            assert!(
+                r >= 0.99 && ef <= 1024,
+                "{}: ef {ef} recall {r}",
+                metric.name()
+            );
             let base = dir.path().join(format!("ix-{}", metric.name()));
             h.save(&base, 7).unwrap();
             let loaded = HnswIndex::load(&base, metric, dim, data.len(), 7)
                 .unwrap()
                 .unwrap();
+            assert_eq!(loaded.params().ef_search, ef);
+            assert_eq!(loaded.recall_at_10(), Some(r));
             assert!(
                 HnswIndex::load(&base, metric, dim, data.len(), 8)
                     .unwrap()

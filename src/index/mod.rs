@@ -7,6 +7,7 @@
 //! scores are distances (smaller is closer).
 
 pub mod hnsw;
+pub mod kernels;
 
 use serde::{Deserialize, Serialize};
 
@@ -56,39 +57,16 @@ impl Metric {
     }
 }
 
+/// Dot product (the run-time-chosen SIMD kernel, [`kernels`]).
 #[inline]
 pub fn dot(a: &[f32], b: &[f32]) -> f32 {
-    // Eight partial sums let the compiler vectorise.
-    let mut acc = [0f32; 8];
-    let chunks = a.len() / 8;
-    for i in 0..chunks {
-        for k in 0..8 {
-            acc[k] += a[i * 8 + k] * b[i * 8 + k];
-        }
-    }
-    let mut s: f32 = acc.iter().sum();
-    for i in chunks * 8..a.len() {
-        s += a[i] * b[i];
-    }
-    s
+    kernels::dot(a, b)
 }
 
+/// Euclidean distance (the run-time-chosen SIMD kernel, [`kernels`]).
 #[inline]
 pub fn l2(a: &[f32], b: &[f32]) -> f32 {
-    let mut acc = [0f32; 8];
-    let chunks = a.len() / 8;
-    for i in 0..chunks {
-        for k in 0..8 {
-            let d = a[i * 8 + k] - b[i * 8 + k];
-            acc[k] += d * d;
-        }
-    }
-    let mut s: f32 = acc.iter().sum();
-    for i in chunks * 8..a.len() {
-        let d = a[i] - b[i];
-        s += d * d;
-    }
-    s.sqrt()
+    kernels::l2sq(a, b).sqrt()
 }
 
 pub fn normalized(v: &[f32]) -> Vec<f32> {

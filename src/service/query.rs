@@ -118,6 +118,11 @@ impl Catalog {
     }
 }
 
+/// Stored windows that serve as queries when an index's `ef_search` is
+/// chosen, and the recall@10 it must reach against exact search.
+pub const CALIBRATION_QUERIES: usize = 100;
+pub const TARGET_RECALL: f64 = 0.99;
+
 /// Share of deleted points past which an index is rebuilt by maintenance.
 pub const COMPACT_SHARE: f64 = 0.25;
 
@@ -259,8 +264,7 @@ impl Searcher {
                     .await
                     .map_err(|err| fail(err.to_string()))?;
             match loaded {
-                Ok(Some(mut ix)) => {
-                    ix.set_ef_search(params.ef_search);
+                Ok(Some(ix)) => {
                     let dead = ix.len().saturating_sub(live);
                     return Ok(Entry {
                         ix: Arc::new(ix),
@@ -288,8 +292,15 @@ impl Searcher {
                 }
                 return Arc::new(ix) as Arc<dyn AnnIndex>;
             }
-            let ix = HnswIndex::new(m, dim, items.len(), params);
-            ix.add_batch(&items);
+            // ef_search for recall@10 ≥ 0.99 on held-out stored windows.
+            let ix = HnswIndex::build_calibrated(
+                m,
+                dim,
+                params,
+                &items,
+                CALIBRATION_QUERIES,
+                TARGET_RECALL,
+            );
             if let Err(err) = ix.save(&b, generation) {
                 eprintln!("index {} not saved: {err}", b.display());
             }
