@@ -50,6 +50,52 @@ pub struct ServeConfig {
     /// writes are refused (403 / PERMISSION_DENIED).
     #[arg(long, env = "CHOREO_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// An origin (`https://studio.example.org`) whose pages may call the
+    /// REST API from a browser (CORS, preflight answered); repeat or
+    /// comma-separate for several, `*` for any (development). None: no
+    /// cross-origin calls. Writes still need the token.
+    #[arg(
+        long = "cors-origin",
+        env = "CHOREO_CORS_ORIGIN",
+        value_delimiter = ','
+    )]
+    pub cors_origins: Vec<String>,
+}
+
+/// The CORS layer for `--cors-origin`, or an error naming the bad origin.
+pub fn cors_layer(origins: &[String]) -> Result<Option<tower_http::cors::CorsLayer>> {
+    use axum::http::{header, HeaderValue, Method};
+    use tower_http::cors::{AllowOrigin, CorsLayer};
+    if origins.is_empty() {
+        return Ok(None);
+    }
+    let allow = if origins.iter().any(|o| o == "*") {
+        AllowOrigin::any()
+    } else {
+        let mut list = Vec::new();
+        for o in origins {
+            let ok = (o.starts_with("http://") || o.starts_with("https://"))
+                && !o.trim_end_matches('/').contains(['?', '#'])
+                && o.split("://")
+                    .nth(1)
+                    .is_some_and(|h| !h.is_empty() && !h.contains('/'));
+            if !ok {
+                anyhow::bail!(
+                    "--cors-origin {o:?}: an origin is scheme://host[:port] (no path), or *"
+                );
+            }
+            list.push(HeaderValue::from_str(o).with_context(|| format!("--cors-origin {o:?}"))?);
+        }
+        AllowOrigin::list(list)
+    };
+    Ok(Some(
+        CorsLayer::new()
+            .allow_origin(allow)
+            .allow_methods([Method::GET, Method::POST, Method::DELETE, Method::OPTIONS])
+            .allow_headers([header::CONTENT_TYPE, header::AUTHORIZATION])
+            .expose_headers([header::RETRY_AFTER, header::ALLOW])
+            .max_age(std::time::Duration::from_secs(600)),
+    ))
 }
 
 /// A running server.
@@ -81,6 +127,7 @@ impl Running {
 
 /// Open the store (ingesting `cfg.ingest` first), bind both ports and serve.
 pub async fn start(cfg: &ServeConfig) -> Result<Running> {
+    cors_layer(&cfg.cors_origins)?;
     std::fs::create_dir_all(&cfg.data_dir)
         .with_context(|| format!("--data-dir {}", cfg.data_dir.display()))?;
     let db = cfg.data_dir.join("choreo.db");
@@ -156,7 +203,10 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     let stopped = |mut rx: watch::Receiver<bool>| async move {
         let _ = rx.wait_for(|v| *v).await;
     };
-    let app = http::router(state.clone(), max);
+    let mut app = http::router(state.clone(), max);
+    if let Some(cors) = cors_layer(&cfg.cors_origins)? {
+        app = app.layer(cors);
+    }
     let r1 = rx.clone();
     let t1 = tokio::spawn(async move {
         axum::serve(http_l, app)

@@ -116,6 +116,7 @@ fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
         model: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/default"),
         token: Some(TOKEN.into()),
         inbetweener: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/inbetween"),
+        cors_origins: vec![],
     }
 }
 

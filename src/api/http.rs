@@ -118,24 +118,26 @@ async fn method_json(req: axum::extract::Request, next: axum::middleware::Next) 
 }
 
 fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ApiError> {
-    b.map(|Json(x)| x).map_err(|r| {
-        let text = r.body_text();
-        // A misspelt field is named as the request spelt it ("start" for
-        // "start_s"), not passed over.
-        match text
-            .split_once("unknown field `")
-            .and_then(|(_, rest)| rest.split_once('`'))
-        {
-            Some((field, rest)) => ApiError::invalid(
-                field,
-                format!(
-                    "unknown field{}",
-                    rest.split(" at line").next().unwrap_or("")
-                ),
+    b.map(|Json(x)| x).map_err(|r| decode_error(&r.body_text()))
+}
+
+/// A JSON body serde could not read, as an error naming the field: a
+/// misspelt field is named as the request spelt it ("start" for
+/// "start_s"), not passed over.
+pub(crate) fn decode_error(text: &str) -> ApiError {
+    match text
+        .split_once("unknown field `")
+        .and_then(|(_, rest)| rest.split_once('`'))
+    {
+        Some((field, rest)) => ApiError::invalid(
+            field,
+            format!(
+                "unknown field{}",
+                rest.split(" at line").next().unwrap_or("")
             ),
-            None => ApiError::invalid("body", text),
-        }
-    })
+        ),
+        None => ApiError::invalid("body", text),
+    }
 }
 
 #[derive(Deserialize)]
@@ -420,22 +422,28 @@ pub struct GenerateBody {
     pub sampling: SamplingJson,
 }
 
+impl GenerateBody {
+    /// The request both REST and the WebSocket stream take.
+    pub(crate) fn params(self) -> Result<super::lm::GenerateParams, ApiError> {
+        Ok(super::lm::GenerateParams {
+            labels: self.labels,
+            frames: self.frames,
+            prompt: self.prompt.map(|x| source("prompt", Some(x))).transpose()?,
+            prompt_joints: self.prompt_joints,
+            seed_motion: self
+                .seed_motion
+                .map(|x| source("seed_motion", Some(x)))
+                .transpose()?,
+            sampling: self.sampling.to_sampling(),
+        })
+    }
+}
+
 async fn generate(
     State(s): State<Arc<AppState>>,
     b: Result<Json<GenerateBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    let b = body(b)?;
-    let p = super::lm::GenerateParams {
-        labels: b.labels,
-        frames: b.frames,
-        prompt: b.prompt.map(|x| source("prompt", Some(x))).transpose()?,
-        prompt_joints: b.prompt_joints,
-        seed_motion: b
-            .seed_motion
-            .map(|x| source("seed_motion", Some(x)))
-            .transpose()?,
-        sampling: b.sampling.to_sampling(),
-    };
+    let p = body(b)?.params()?;
     let (m, r) = super::lm::generate(&s, p).await?;
     Ok(Json(json!({
         "output": MotionJson::from_motion(&m),
@@ -514,6 +522,8 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         .route("/v1/lowpass", post(lowpass))
         .route("/v1/keyframes", post(keyframes))
         .route("/v1/generate", post(generate))
+        .route("/v1/generate/ws", get(super::ws::generate))
+        .route("/v1/duet/ws", get(super::ws::duet))
         .route("/v1/classify", post(classify))
         .route("/v1/motions", get(list_motions).post(ingest))
         .route("/v1/motions/{id}", get(get_motion).delete(delete_motion))

@@ -9,6 +9,7 @@ pub mod grpc;
 pub mod http;
 pub mod lm;
 pub mod metrics;
+pub mod ws;
 
 use crate::features::interpolate::{lowpass as lowpass_channels, to_f64, InterpolateOptions};
 use crate::features::{rows72, smpl24_at_60, Embedding};

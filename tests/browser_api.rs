@@ -1,0 +1,305 @@
+//! What browsers need from the server: CORS (preflight answered, only the
+//! configured origins allowed) and the WebSocket streams for generation and
+//! the duet, including their bad-input paths. Uses the bundled model; no
+//! data files needed.
+
+use choreo::server::{start, ServeConfig};
+use futures_util::{SinkExt, StreamExt};
+use serde_json::{json, Value};
+use std::io::{Read, Write};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use tokio_tungstenite::tungstenite::Message;
+
+fn config(dir: &std::path::Path, cors: &[&str]) -> ServeConfig {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    ServeConfig {
+        data_dir: dir.to_path_buf(),
+        bind: "127.0.0.1".into(),
+        http_port: 0,
+        grpc_port: 0,
+        max_body_mb: 64,
+        workers: 2,
+        ingest: vec![],
+        model: root.join("models/default"),
+        token: Some("t0ken".into()),
+        inbetweener: root.join("models/inbetween"),
+        cors_origins: cors.iter().map(|s| s.to_string()).collect(),
+    }
+}
+
+/// A raw HTTP/1.1 exchange: (status, lower-cased headers, body).
+fn raw(addr: SocketAddr, request: &str) -> (u16, Vec<(String, String)>, String) {
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.write_all(request.as_bytes()).unwrap();
+    let mut out = Vec::new();
+    s.read_to_end(&mut out).unwrap();
+    let text = String::from_utf8_lossy(&out).to_string();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    let mut lines = head.lines();
+    let status = lines
+        .next()
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let headers = lines
+        .filter_map(|l| l.split_once(':'))
+        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
+        .collect();
+    (status, headers, body.to_string())
+}
+
+fn header<'a>(h: &'a [(String, String)], name: &str) -> Option<&'a str> {
+    h.iter().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
+}
+
+fn get_with_origin(addr: SocketAddr, origin: &str) -> (u16, Vec<(String, String)>, String) {
+    raw(
+        addr,
+        &format!(
+            "GET /healthz HTTP/1.1\r\nHost: x\r\nOrigin: {origin}\r\nConnection: close\r\n\r\n"
+        ),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cors_allows_only_the_configured_origins() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = start(&config(dir.path(), &["http://studio.test"]))
+        .await
+        .unwrap();
+    let h = running.http;
+    let (pre, ok, evil, write) = tokio::task::spawn_blocking(move || {
+        let pre = raw(
+            h,
+            "OPTIONS /v1/query HTTP/1.1\r\nHost: x\r\nOrigin: http://studio.test\r\n\
+             Access-Control-Request-Method: POST\r\n\
+             Access-Control-Request-Headers: content-type, authorization\r\nConnection: close\r\n\r\n",
+        );
+        let ok = get_with_origin(h, "http://studio.test");
+        let evil = get_with_origin(h, "http://evil.test");
+        // A cross-origin write without the token is still refused.
+        let write = raw(
+            h,
+            "DELETE /v1/motions/1 HTTP/1.1\r\nHost: x\r\nOrigin: http://studio.test\r\nConnection: close\r\nContent-Length: 0\r\n\r\n",
+        );
+        (pre, ok, evil, write)
+    })
+    .await
+    .unwrap();
+    assert_eq!(pre.0, 200, "{pre:?}");
+    assert_eq!(
+        header(&pre.1, "access-control-allow-origin"),
+        Some("http://studio.test")
+    );
+    let methods = header(&pre.1, "access-control-allow-methods").unwrap_or("");
+    assert!(
+        methods.contains("POST") && methods.contains("DELETE"),
+        "{methods}"
+    );
+    let allowed = header(&pre.1, "access-control-allow-headers")
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    assert!(allowed.contains("authorization") && allowed.contains("content-type"));
+    assert_eq!(ok.0, 200);
+    assert_eq!(
+        header(&ok.1, "access-control-allow-origin"),
+        Some("http://studio.test")
+    );
+    assert_eq!(evil.0, 200);
+    assert_eq!(header(&evil.1, "access-control-allow-origin"), None);
+    assert_eq!(write.0, 401, "{write:?}");
+    assert_eq!(
+        header(&write.1, "access-control-allow-origin"),
+        Some("http://studio.test"),
+        "the browser must be able to read the error"
+    );
+    running.shutdown().await.unwrap();
+
+    // Without --cors-origin, no cross-origin reads.
+    let dir2 = tempfile::tempdir().unwrap();
+    let closed = start(&config(dir2.path(), &[])).await.unwrap();
+    let h2 = closed.http;
+    let r = tokio::task::spawn_blocking(move || get_with_origin(h2, "http://studio.test"))
+        .await
+        .unwrap();
+    assert_eq!(header(&r.1, "access-control-allow-origin"), None);
+    closed.shutdown().await.unwrap();
+
+    // A bad origin stops start-up, named.
+    let dir3 = tempfile::tempdir().unwrap();
+    let err = start(&config(dir3.path(), &["studio.test/path"]))
+        .await
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(err.contains("--cors-origin"), "{err}");
+}
+
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+async fn connect(addr: SocketAddr, path: &str) -> Ws {
+    tokio_tungstenite::connect_async(format!("ws://{addr}{path}"))
+        .await
+        .unwrap()
+        .0
+}
+
+/// The next JSON message; `None` once the server closed.
+async fn recv(ws: &mut Ws) -> Option<Value> {
+    loop {
+        let m = tokio::time::timeout(std::time::Duration::from_secs(60), ws.next())
+            .await
+            .expect("the server answers within a minute")?;
+        match m.ok()? {
+            Message::Text(t) => return Some(serde_json::from_str(t.as_str()).unwrap()),
+            Message::Close(_) => return None,
+            _ => continue,
+        }
+    }
+}
+
+async fn rest_generate(addr: SocketAddr, body: Value) -> (u16, Value) {
+    tokio::task::spawn_blocking(move || {
+        let b = body.to_string();
+        let (status, _, text) = raw(
+            addr,
+            &format!(
+                "POST /v1/generate HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{b}",
+                b.len()
+            ),
+        );
+        (status, serde_json::from_str(&text).unwrap_or(Value::Null))
+    })
+    .await
+    .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn websocket_generate_streams_what_rest_returns_and_stops_with_the_client() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = start(&config(dir.path(), &[])).await.unwrap();
+    let h = running.http;
+    let request = json!({"frames": 24, "sampling": {"temperature": 0.9, "top_p": 0.95, "seed": 7}});
+    let mut ws = connect(h, "/v1/generate/ws").await;
+    ws.send(Message::Text(request.to_string().into()))
+        .await
+        .unwrap();
+    let start_msg = recv(&mut ws).await.unwrap();
+    assert_eq!(start_msg["start"]["skeleton"], "smpl13", "{start_msg}");
+    let mut frames = Vec::new();
+    let end = loop {
+        let m = recv(&mut ws)
+            .await
+            .expect("an end message before the close");
+        if m.get("frame").is_some() {
+            frames.push(m["frame"].clone());
+        } else {
+            break m;
+        }
+    };
+    assert_eq!(end["end"]["frames"], 24, "{end}");
+    assert_eq!(frames.len(), 24);
+    assert!(recv(&mut ws).await.is_none(), "closed after the end");
+    // The same request over REST: the same frames.
+    let (status, rest) = rest_generate(h, request).await;
+    assert_eq!(status, 200, "{rest}");
+    let out = &rest["output"];
+    for (i, f) in frames.iter().enumerate() {
+        assert_eq!(f["index"], i);
+        assert_eq!(f["rotations"].as_array().unwrap().len(), 13);
+        for (a, b) in f["rotations"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .zip(out["rotations"][i].as_array().unwrap())
+        {
+            for k in 0..3 {
+                let (x, y) = (a[k].as_f64().unwrap(), b[k].as_f64().unwrap());
+                assert!((x - y).abs() < 1e-9, "frame {i}: {x} vs {y}");
+            }
+        }
+    }
+
+    // Not JSON: an error naming the body, then the close.
+    let mut bad = connect(h, "/v1/generate/ws").await;
+    bad.send(Message::Text("{frames: 3".into())).await.unwrap();
+    let e = recv(&mut bad).await.unwrap();
+    assert_eq!(e["error"]["code"], "invalid_argument", "{e}");
+    assert!(recv(&mut bad).await.is_none());
+    // A misspelt field is named.
+    let mut typo = connect(h, "/v1/generate/ws").await;
+    typo.send(Message::Text(r#"{"frame": 3}"#.into()))
+        .await
+        .unwrap();
+    let e = recv(&mut typo).await.unwrap();
+    assert_eq!(e["error"]["field"], "frame", "{e}");
+
+    // A client that leaves mid-stream frees its worker: two generations
+    // then run at once (2 workers) well before the long one would end.
+    let mut gone = connect(h, "/v1/generate/ws").await;
+    gone.send(Message::Text(json!({"frames": 2400}).to_string().into()))
+        .await
+        .unwrap();
+    recv(&mut gone).await.unwrap();
+    recv(&mut gone).await.unwrap();
+    drop(gone);
+    let t0 = std::time::Instant::now();
+    loop {
+        let short = json!({"frames": 2});
+        let (a, b) = tokio::join!(rest_generate(h, short.clone()), rest_generate(h, short));
+        if a.0 == 200 && b.0 == 200 {
+            break;
+        }
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(8),
+            "the abandoned stream still holds its worker ({} / {})",
+            a.0,
+            b.0
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+    running.shutdown().await.unwrap();
+}
+
+fn smpl13_frame(lift: f64) -> Value {
+    json!({"fps": 20.0, "skeleton": "smpl13",
+           "rotations": [vec![[0.0, 0.0, lift]; 13]],
+           "translation": [[0.0, 0.9, 0.0]]})
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn websocket_duet_answers_frame_for_frame_and_refuses_a_wrong_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = start(&config(dir.path(), &[])).await.unwrap();
+    let mut ws = connect(running.http, "/v1/duet/ws").await;
+    let setup = json!({"labels": {}, "prompt_joints": ["pelvis", "left_shoulder"],
+                       "sampling": {"seed": 3}, "frame": smpl13_frame(0.0)});
+    ws.send(Message::Text(setup.to_string().into()))
+        .await
+        .unwrap();
+    let first = recv(&mut ws).await.unwrap();
+    assert_eq!(first["frame"]["index"], 0, "{first}");
+    for i in 1..5 {
+        let m = json!({"frame": smpl13_frame(0.1 * i as f64)});
+        ws.send(Message::Text(m.to_string().into())).await.unwrap();
+        let r = recv(&mut ws).await.unwrap();
+        assert_eq!(r["frame"]["index"], i, "{r}");
+        assert_eq!(r["frame"]["rotations"].as_array().unwrap().len(), 13);
+    }
+    // Twelve joints for a 13-joint skeleton: an error, then the close.
+    let mut wrong = smpl13_frame(0.0);
+    wrong["rotations"] = json!([vec![[0.0, 0.0, 0.0]; 12]]);
+    ws.send(Message::Text(json!({"frame": wrong}).to_string().into()))
+        .await
+        .unwrap();
+    let e = recv(&mut ws).await.unwrap();
+    assert_eq!(e["error"]["code"], "invalid_argument", "{e}");
+    assert!(
+        e["error"]["field"].as_str().unwrap().starts_with("frame"),
+        "{e}"
+    );
+    assert!(recv(&mut ws).await.is_none());
+    running.shutdown().await.unwrap();
+}
