@@ -60,12 +60,15 @@ class Phase:
         self.name = name
         self.query, self.health, self.statuses = [], [], {}
         self.stop = threading.Event()
+        self.slow = []
+        self.t0 = time.perf_counter()
         self.lock = threading.Lock()
 
     def note(self, kind, status, dt):
         with self.lock:
-            self.statuses[status] = self.statuses.get(status, 0) + 1
-            if status == 200:
+            key = f"{kind} {status}"
+            self.statuses[key] = self.statuses.get(key, 0) + 1
+            if status == 200 and kind in ("query", "health"):
                 (self.query if kind == "query" else self.health).append(dt)
 
 
@@ -79,7 +82,10 @@ def querier(base, motions, phase, seed):
 
 def poller(base, phase):
     while not phase.stop.is_set():
-        phase.note("health", *call(base + "/healthz"))
+        status, dt = call(base + "/healthz")
+        phase.note("health", status, dt)
+        if dt > 0.1:
+            phase.slow.append((round(time.perf_counter() - phase.t0, 2), round(dt * 1e3)))
         time.sleep(0.05)
 
 
@@ -87,7 +93,8 @@ def generator(base, phase, seed):
     rng = random.Random(seed)
     while not phase.stop.is_set():
         body = {"frames": 40, "sampling": {"temperature": 0.95, "top_p": 0.95, "seed": rng.randint(1, 10**6)}}
-        status, _ = call(base + "/v1/generate", body)
+        status, dt = call(base + "/v1/generate", body)
+        phase.note("generate", status, dt)
         if status == 429:
             time.sleep(0.02)
 
@@ -105,6 +112,8 @@ def run_phase(name, base, motions, seconds=None, queriers=2, generators=0, write
     else:
         time.sleep(seconds)
     phase.seconds = time.perf_counter() - t0
+    if phase.slow:
+        print(f"{name}: /healthz over 100 ms at (s, ms): {phase.slow}", file=sys.stderr)
     phase.stop.set()
     for t in threads:
         t.join()
@@ -118,6 +127,7 @@ def main():
     ap.add_argument("--takes", type=int, default=50)
     ap.add_argument("--seconds", type=float, default=20)
     ap.add_argument("--cores", type=int, default=os.cpu_count())
+    ap.add_argument("--saturated-runs", type=int, default=1)
     args = ap.parse_args()
     data = os.path.abspath(args.data)
     work = tempfile.mkdtemp(prefix="choreo-writes-")
@@ -128,7 +138,7 @@ def main():
         for f in fs
         if f.endswith(".bvh")
     )
-    held = bandai[:: max(1, len(bandai) // args.takes)][: args.takes]
+    held = bandai[:: max(1, len(bandai) // max(1, args.takes))][: args.takes]
     corpus = os.path.join(work, "corpus")
     os.makedirs(corpus)
     for sub in ("aistpp", "aistpp-vrm", "cmu"):
@@ -174,12 +184,13 @@ def main():
         writes = []
         phases.append(run_phase(f"ingest {len(held)} takes", base, motions, writer=write_all))
         time.sleep(2)
-        phases.append(run_phase("saturated", base, motions, args.seconds,
-                                queriers=2 * args.cores, generators=4))
+        for _ in range(args.saturated_runs):
+            phases.append(run_phase("saturated", base, motions, args.seconds,
+                                    queriers=2 * args.cores, generators=4))
         idle_p99 = pct(phases[0].query, 99)
         print(f"\n{len(ms)} stored motions; ingest of {len(held)} takes: "
-              f"p50 {pct(writes, 50) * 1e3:.0f} ms, max {max(writes) * 1e3:.0f} ms per take\n")
-        print("| phase | s | queries | query p50 ms | query p99 ms | p99 / idle p99 | /healthz p50 ms | /healthz p99 ms | /healthz max ms | statuses |")
+              f"p50 {pct(writes, 50) * 1e3:.0f} ms, max {max(writes, default=0) * 1e3:.0f} ms per take\n")
+        print("| phase | s | queries | query p50 ms | query p99 ms | p99 / idle p99 | /healthz p50 ms | /healthz p99 ms | /healthz max ms | answers (kind status: count) |")
         print("|---|---|---|---|---|---|---|---|---|---|")
         for p in phases:
             print(f"| {p.name} | {p.seconds:.1f} | {len(p.query)} | {pct(p.query, 50) * 1e3:.1f} | "
