@@ -739,7 +739,10 @@ fn run(cli: Cli) -> Result<()> {
                     json,
                 },
         } => eval_keyframes(data, bpm, counts, json),
-        Cmd::Serve(cfg) => runtime()?.block_on(choreo::server::serve(cfg)),
+        Cmd::Serve(cfg) => {
+            choreo::server::init_logging(cfg.log_format);
+            runtime()?.block_on(choreo::server::serve(cfg))
+        }
         Cmd::Keyframes {
             motion,
             bpm,

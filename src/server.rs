@@ -60,6 +60,32 @@ pub struct ServeConfig {
         value_delimiter = ','
     )]
     pub cors_origins: Vec<String>,
+    /// Log lines as text or as one JSON object each (to stderr; the level
+    /// from `RUST_LOG`, default `info`). Every request logs one line with
+    /// its id (echoed in `x-request-id`), route, status and duration.
+    #[arg(long, env = "CHOREO_LOG_FORMAT", value_enum, default_value = "text")]
+    pub log_format: LogFormat,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LogFormat {
+    #[default]
+    Text,
+    Json,
+}
+
+/// Install the process's log subscriber (once; later calls do nothing).
+pub fn init_logging(format: LogFormat) {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let b = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()));
+    let _ = match format {
+        LogFormat::Text => b.try_init(),
+        LogFormat::Json => b.json().with_current_span(true).try_init(),
+    };
 }
 
 /// The CORS layer for `--cors-origin`, or an error naming the bad origin.
@@ -136,7 +162,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         let r =
             crate::service::ingest::ingest(&store, &cfg.ingest, &Default::default(), &|_, _, _| {})
                 .await?;
-        eprintln!(
+        tracing::info!(
             "ingested {} motions ({} windows), {} already stored, {} unreadable",
             r.motions,
             r.windows,
@@ -149,7 +175,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         let t0 = std::time::Instant::now();
         let m = crate::lm::model::MotionModel::load(&cfg.model)
             .with_context(|| format!("--model {}", cfg.model.display()))?;
-        eprintln!(
+        tracing::info!(
             "model {} ({}) loaded in {:.2} s; context {} frames; conditioned on: {}",
             cfg.model.display(),
             m.kind(),
@@ -159,14 +185,14 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         );
         Some(m)
     } else {
-        eprintln!(
+        tracing::warn!(
             "no model at {}: generate and classify will answer 503 (set --model)",
             cfg.model.display()
         );
         None
     };
     if cfg.token.as_deref().is_none_or(str::is_empty) {
-        eprintln!("no --token (CHOREO_TOKEN): ingest and delete are switched off");
+        tracing::warn!("no --token (CHOREO_TOKEN): ingest and delete are switched off");
     }
     let inbetweener = if cfg.inbetweener.exists() {
         Some(Arc::new(
@@ -174,7 +200,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
                 .with_context(|| format!("--inbetweener {}", cfg.inbetweener.display()))?,
         ))
     } else {
-        eprintln!(
+        tracing::warn!(
             "no in-betweener at {}: keyframes with inbetween=learned will answer 503",
             cfg.inbetweener.display()
         );
@@ -251,9 +277,10 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
 /// Serve until SIGINT or SIGTERM.
 pub async fn serve(cfg: ServeConfig) -> Result<()> {
     let running = start(&cfg).await?;
-    eprintln!(
+    tracing::info!(
         "choreo: REST on http://{}, gRPC on {}",
-        running.http, running.grpc
+        running.http,
+        running.grpc
     );
     let stop = running.stopper();
     tokio::spawn(async move {
@@ -270,7 +297,7 @@ pub async fn serve(cfg: ServeConfig) -> Result<()> {
         }
         #[cfg(not(unix))]
         let _ = ctrl_c.await;
-        eprintln!("choreo: shutting down");
+        tracing::info!("choreo: shutting down");
         let _ = stop.send(true);
     });
     running.wait().await

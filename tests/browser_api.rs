@@ -25,6 +25,7 @@ fn config(dir: &std::path::Path, cors: &[&str]) -> ServeConfig {
         token: Some("t0ken".into()),
         inbetweener: root.join("models/inbetween"),
         cors_origins: cors.iter().map(|s| s.to_string()).collect(),
+        log_format: Default::default(),
     }
 }
 
@@ -301,5 +302,121 @@ async fn websocket_duet_answers_frame_for_frame_and_refuses_a_wrong_frame() {
         "{e}"
     );
     assert!(recv(&mut ws).await.is_none());
+    running.shutdown().await.unwrap();
+}
+
+/// `GET /v1/motions/{id}/glb` gives a binary glTF of the stored motion
+/// (its joints and frames; scripts/check_gltf.py checks the pose against
+/// choreo's FK in an independent reader); an unknown id is 404.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stored_motion_exports_as_glb() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = start(&config(dir.path(), &[])).await.unwrap();
+    let h = running.http;
+    let frames = 12;
+    let body = json!({"motion": {"motion": {
+        "fps": 30.0, "skeleton": "smpl24",
+        "rotations": (0..frames).map(|f| vec![[0.0, 0.02 * f as f64, 0.0]; 24]).collect::<Vec<_>>(),
+        "translation": vec![[0.0, 0.9, 0.0]; frames]}}})
+    .to_string();
+    let (glb_status, glb_headers, glb_body, missing) = tokio::task::spawn_blocking(move || {
+        let (status, _, text) = raw(
+            h,
+            &format!(
+                "POST /v1/motions HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer t0ken\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+                body.len()
+            ),
+        );
+        assert_eq!(status, 201, "{text}");
+        let id = serde_json::from_str::<Value>(&text).unwrap()["motion_id"]
+            .as_i64()
+            .unwrap();
+        let mut s = std::net::TcpStream::connect(h).unwrap();
+        write!(
+            s,
+            "GET /v1/motions/{id}/glb HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        )
+        .unwrap();
+        let mut out = Vec::new();
+        s.read_to_end(&mut out).unwrap();
+        let split = out.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+        let head = String::from_utf8_lossy(&out[..split]).to_ascii_lowercase();
+        let missing = raw(
+            h,
+            "GET /v1/motions/999999/glb HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n",
+        );
+        (head.clone(), head, out[split + 4..].to_vec(), missing.0)
+    })
+    .await
+    .unwrap();
+    assert!(glb_status.starts_with("http/1.1 200"), "{glb_status}");
+    assert!(glb_headers.contains("content-type: model/gltf-binary"));
+    assert_eq!(&glb_body[..4], b"glTF");
+    let jl = u32::from_le_bytes(glb_body[12..16].try_into().unwrap()) as usize;
+    let doc: Value = serde_json::from_slice(&glb_body[20..20 + jl]).unwrap();
+    assert_eq!(doc["skins"][0]["joints"].as_array().unwrap().len(), 24);
+    let times = doc["animations"][0]["samplers"][0]["input"]
+        .as_u64()
+        .unwrap() as usize;
+    assert_eq!(doc["accessors"][times]["count"], frames);
+    assert_eq!(missing, 404);
+    running.shutdown().await.unwrap();
+}
+
+/// Every answer carries `x-request-id`: the caller's when it sent a usable
+/// one, a new one otherwise (REST and gRPC), so a log line can be found
+/// from a client's report.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn request_ids_are_echoed_over_both_transports() {
+    use choreo::api::grpc::pb;
+    let dir = tempfile::tempdir().unwrap();
+    let running = start(&config(dir.path(), &[])).await.unwrap();
+    let h = running.http;
+    let (given, fresh, other, nf) = tokio::task::spawn_blocking(move || {
+        let get = |extra: &str, path: &str| {
+            raw(
+                h,
+                &format!("GET {path} HTTP/1.1\r\nHost: x\r\n{extra}Connection: close\r\n\r\n"),
+            )
+        };
+        (
+            get("X-Request-Id: studio-42\r\n", "/healthz"),
+            get("", "/healthz"),
+            get("", "/healthz"),
+            get("x-request-id: bad id with spaces\r\n", "/v1/nowhere"),
+        )
+    })
+    .await
+    .unwrap();
+    assert_eq!(header(&given.1, "x-request-id"), Some("studio-42"));
+    let (a, b) = (
+        header(&fresh.1, "x-request-id").unwrap(),
+        header(&other.1, "x-request-id").unwrap(),
+    );
+    assert!(
+        a.len() == 16 && a.bytes().all(|c| c.is_ascii_hexdigit()),
+        "{a}"
+    );
+    assert_ne!(a, b);
+    assert_eq!(nf.0, 404);
+    let own = header(&nf.1, "x-request-id").unwrap();
+    assert_ne!(own, "bad id with spaces");
+    let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{}", running.grpc))
+        .await
+        .unwrap();
+    let mut req = tonic::Request::new(pb::ListMotionsRequest {});
+    req.metadata_mut()
+        .insert("x-request-id", "rig-7".parse().unwrap());
+    let resp = client.list_motions(req).await.unwrap();
+    assert_eq!(resp.metadata().get("x-request-id").unwrap(), "rig-7");
+    let resp = client
+        .list_motions(pb::ListMotionsRequest {})
+        .await
+        .unwrap();
+    assert_eq!(
+        resp.metadata().get("x-request-id").unwrap().len(),
+        16,
+        "a fresh id"
+    );
     running.shutdown().await.unwrap();
 }

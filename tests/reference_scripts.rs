@@ -52,6 +52,13 @@ fn rotations_agree_with_scipy() {
 }
 
 #[test]
+fn gltf_output_reads_in_pygltflib() {
+    if python_with("numpy, pygltflib") {
+        run_script("check_gltf.py", Some("aistpp"));
+    }
+}
+
+#[test]
 fn bvh_output_reads_in_bvhio() {
     if python_with("numpy, bvhio") {
         run_script("check_bvh_bvhio.py", Some("aistpp"));

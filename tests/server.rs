@@ -117,6 +117,7 @@ fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
         token: Some(TOKEN.into()),
         inbetweener: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/inbetween"),
         cors_origins: vec![],
+        log_format: Default::default(),
     }
 }
 
@@ -1256,7 +1257,7 @@ fn spawn_server(dir: &std::path::Path) -> (std::process::Child, SocketAddr) {
             .next()
             .expect("the server exited before listening")
             .unwrap();
-        if let Some(rest) = line.strip_prefix("choreo: REST on http://") {
+        if let Some((_, rest)) = line.split_once("choreo: REST on http://") {
             break rest.split(',').next().unwrap().parse().unwrap();
         }
     };

@@ -343,6 +343,28 @@ async fn get_motion(
     ))
 }
 
+async fn export_glb(
+    State(s): State<Arc<AppState>>,
+    id: Result<Path<i64>, PathRejection>,
+) -> Result<Response, ApiError> {
+    let id = motion_id(id)?;
+    let bytes = super::export_glb(&s, id).await?;
+    Ok((
+        [
+            (
+                axum::http::header::CONTENT_TYPE,
+                "model/gltf-binary".to_string(),
+            ),
+            (
+                axum::http::header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"motion-{id}.glb\""),
+            ),
+        ],
+        bytes,
+    )
+        .into_response())
+}
+
 async fn export_motion(
     State(s): State<Arc<AppState>>,
     id: Result<Path<i64>, PathRejection>,
@@ -490,6 +512,7 @@ async fn track(
         .get::<axum::extract::MatchedPath>()
         .map(|p| p.as_str().to_string())
         .unwrap_or_else(|| "unmatched".into());
+    tracing::Span::current().record("route", route.as_str());
     let t0 = std::time::Instant::now();
     let resp = next.run(req).await;
     s.metrics.observe(
@@ -498,6 +521,42 @@ async fn track(
         resp.status().as_str(),
         t0.elapsed().as_secs_f64(),
     );
+    resp
+}
+
+/// One span per request: its id (the caller's `x-request-id`, or a new
+/// one), method and route; one log line when it is answered, with the
+/// status and duration; the id echoed in the answer's `x-request-id`.
+async fn request_span(mut req: axum::extract::Request, next: axum::middleware::Next) -> Response {
+    use super::metrics::{request_id, REQUEST_ID};
+    let id = request_id(req.headers());
+    let span = tracing::info_span!(
+        "request",
+        id = %id,
+        transport = "http",
+        method = %req.method(),
+        route = tracing::field::Empty,
+    );
+    if let Ok(v) = axum::http::HeaderValue::from_str(&id) {
+        req.headers_mut().insert(REQUEST_ID, v);
+    }
+    let t0 = std::time::Instant::now();
+    let mut resp = tracing::Instrument::instrument(
+        async move {
+            let resp = next.run(req).await;
+            tracing::info!(
+                status = resp.status().as_u16(),
+                duration_ms = t0.elapsed().as_secs_f64() * 1e3,
+                "answered"
+            );
+            resp
+        },
+        span,
+    )
+    .await;
+    if let Ok(v) = axum::http::HeaderValue::from_str(&id) {
+        resp.headers_mut().insert(REQUEST_ID, v);
+    }
     resp
 }
 
@@ -528,6 +587,7 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         .route("/v1/motions", get(list_motions).post(ingest))
         .route("/v1/motions/{id}", get(get_motion).delete(delete_motion))
         .route("/v1/motions/{id}/bvh", get(export_motion))
+        .route("/v1/motions/{id}/glb", get(export_glb))
         .route(
             "/openapi.json",
             get(|| async {
@@ -541,5 +601,6 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), track))
         .fallback(not_found)
         .layer(axum::middleware::from_fn(method_json))
+        .layer(axum::middleware::from_fn(request_span))
         .with_state(state)
 }

@@ -105,25 +105,70 @@ where
         self.inner.poll_ready(cx)
     }
 
-    fn call(&mut self, req: http::Request<B>) -> Self::Future {
+    fn call(&mut self, mut req: http::Request<B>) -> Self::Future {
         let route = req.uri().path().to_string();
         let t0 = Instant::now();
-        let fut = self.inner.call(req);
+        let id = request_id(req.headers());
+        if let Ok(v) = http::HeaderValue::from_str(&id) {
+            req.headers_mut().insert(REQUEST_ID, v);
+        }
+        let span = tracing::info_span!("request", id = %id, transport = "grpc", route = %route);
+        let fut = {
+            let _e = span.enter();
+            self.inner.call(req)
+        };
         let m = self.m.clone();
-        Box::pin(async move {
-            let r = fut.await;
-            let code = match &r {
-                // Errors before the body come as trailers-only headers.
-                Ok(resp) => resp
-                    .headers()
-                    .get("grpc-status")
-                    .and_then(|v| v.to_str().ok())
-                    .unwrap_or("0")
-                    .to_string(),
-                Err(_) => "transport".to_string(),
-            };
-            m.observe("grpc", &route, &code, t0.elapsed().as_secs_f64());
-            r
-        })
+        Box::pin(tracing::Instrument::instrument(
+            async move {
+                let mut r = fut.await;
+                let code = match &r {
+                    // Errors before the body come as trailers-only headers.
+                    Ok(resp) => resp
+                        .headers()
+                        .get("grpc-status")
+                        .and_then(|v| v.to_str().ok())
+                        .unwrap_or("0")
+                        .to_string(),
+                    Err(_) => "transport".to_string(),
+                };
+                let secs = t0.elapsed().as_secs_f64();
+                m.observe("grpc", &route, &code, secs);
+                tracing::info!(grpc_status = %code, duration_ms = secs * 1e3, "answered");
+                if let (Ok(resp), Ok(v)) = (&mut r, http::HeaderValue::from_str(&id)) {
+                    resp.headers_mut().insert(REQUEST_ID, v);
+                }
+                r
+            },
+            span,
+        ))
     }
+}
+
+/// The header that carries a request's id both ways.
+pub const REQUEST_ID: &str = "x-request-id";
+
+/// The caller's request id when it sent a usable one (1–128 visible ASCII
+/// characters), else a new one (16 hex digits, unique in this process).
+pub fn request_id(headers: &http::HeaderMap) -> String {
+    if let Some(v) = headers.get(REQUEST_ID).and_then(|v| v.to_str().ok()) {
+        if !v.is_empty() && v.len() <= 128 && v.bytes().all(|b| b.is_ascii_graphic()) {
+            return v.to_string();
+        }
+    }
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    static BASE: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    let base = *BASE.get_or_init(|| {
+        let t = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        t ^ (std::process::id() as u64).rotate_left(32)
+    });
+    let n = NEXT.fetch_add(1, Ordering::Relaxed);
+    // A bijective mix, so consecutive ids do not look consecutive.
+    let mut x = base.wrapping_add(n.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    x ^= x >> 31;
+    x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x ^= x >> 29;
+    format!("{x:016x}")
 }

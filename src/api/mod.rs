@@ -613,6 +613,16 @@ pub async fn export_bvh(state: &AppState, id: i64) -> Result<String, ApiError> {
         .await
 }
 
+/// A stored motion as binary glTF (skinned skeleton and its animation).
+pub async fn export_glb(state: &AppState, id: i64) -> Result<Vec<u8>, ApiError> {
+    let (_, m) = get_motion(state, id).await?;
+    state
+        .heavy("export", move || {
+            Ok(crate::motion::io::gltf::write_glb(&m)?)
+        })
+        .await
+}
+
 /// Remove a stored motion and everything derived from it.
 pub async fn delete_motion(state: &AppState, id: i64) -> Result<(), ApiError> {
     if !state.searcher.delete(id).await.map_err(internal)? {

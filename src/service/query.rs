@@ -274,7 +274,7 @@ impl Searcher {
                     });
                 }
                 Ok(None) => {}
-                Err(err) => eprintln!(
+                Err(err) => tracing::warn!(
                     "index {}: unreadable ({err}); rebuilding from the store",
                     base.display()
                 ),
@@ -302,7 +302,7 @@ impl Searcher {
                 TARGET_RECALL,
             );
             if let Err(err) = ix.save(&b, generation) {
-                eprintln!("index {} not saved: {err}", b.display());
+                tracing::warn!("index {} not saved: {err}", b.display());
             }
             Arc::new(ix)
         })
@@ -670,7 +670,7 @@ impl Searcher {
                 HnswIndex::touch(&base, generation)
             };
             if let Err(err) = saved {
-                eprintln!("index {}-{}: not saved ({err})", e.name(), m.name());
+                tracing::warn!("index {}-{}: not saved ({err})", e.name(), m.name());
             }
         }
         Ok(())
@@ -697,7 +697,7 @@ impl Searcher {
                 tokio::time::sleep(debounce).await;
                 let Some(s) = me.upgrade() else { break };
                 if let Err(err) = s.maintain().await {
-                    eprintln!("index maintenance failed: {err}");
+                    tracing::error!("index maintenance failed: {err}");
                 }
             }
         });

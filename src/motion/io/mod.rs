@@ -6,6 +6,7 @@
 pub mod aist;
 pub mod amass;
 pub mod bvh;
+pub mod gltf;
 pub mod json;
 pub mod npy;
 pub mod pickle;
@@ -157,10 +158,12 @@ pub fn write_path(
     } else if lower.ends_with(".json") {
         m.validate()?;
         json::write_json(m)
+    } else if lower.ends_with(".glb") {
+        gltf::write_glb(m)?
     } else {
         return Err(MotionError::Unsupported {
             file,
-            reason: "output format must be .bvh, .npz or .json".into(),
+            reason: "output format must be .bvh, .npz, .json or .glb".into(),
         });
     };
     let tmp = path.with_extension("partial");
