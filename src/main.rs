@@ -288,6 +288,9 @@ enum BenchCmd {
         /// scripts/bench_index.sh is run.
         #[arg(long, default_value_t = 0.99)]
         target_recall: f64,
+        /// HNSW graphs to build and measure: hnsw_rs, flat, or both.
+        #[arg(long, value_delimiter = ',', default_value = "hnsw_rs,flat")]
+        backend: Vec<String>,
     },
     /// DP keyframe selection time on a clip looped to --frames frames (60 fps):
     /// per 4/4 measure at --bpm, and over the whole clip (exact).
@@ -664,6 +667,7 @@ fn run(cli: Cli) -> Result<()> {
                     ef_construction,
                     dump_only,
                     target_recall,
+                    backend,
                 },
         } => {
             let metric = Metric::parse(&metric).with_context(|| format!("--metric: '{metric}'"))?;
@@ -671,7 +675,15 @@ fn run(cli: Cli) -> Result<()> {
                 m,
                 ef_construction,
                 ef_search,
+                ..Default::default()
             };
+            let backends = backend
+                .iter()
+                .map(|b| {
+                    choreo::index::hnsw::Backend::parse(b)
+                        .with_context(|| format!("--backend: '{b}' is not hnsw_rs or flat"))
+                })
+                .collect::<Result<Vec<_>>>()?;
             cli::bench_index::run(&cli::bench_index::Bench {
                 sizes,
                 dim,
@@ -681,6 +693,7 @@ fn run(cli: Cli) -> Result<()> {
                 params,
                 dump_only,
                 target_recall,
+                backends,
             })
         }
         Cmd::Bench {

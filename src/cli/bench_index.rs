@@ -23,6 +23,8 @@ pub struct Bench {
     pub dump_only: bool,
     /// Also report the smallest ef_search reaching this recall (0 = off).
     pub target_recall: f64,
+    /// The HNSW graphs to build and measure.
+    pub backends: Vec<choreo::index::hnsw::Backend>,
 }
 
 /// Latency percentiles, QPS (one thread) and mean recall of a search fn.
@@ -106,52 +108,12 @@ pub fn run(b: &Bench) -> Result<()> {
         if b.dump_only {
             continue;
         }
-        let t = Instant::now();
-        let mut h = HnswIndex::new(b.metric, b.dim, n, b.params);
-        h.add_batch(&items);
-        let build_s = t.elapsed().as_secs_f64();
-        let p = b.params;
-        let common = json!({"m": p.m, "ef_construction": p.ef_construction,
-                            "kernel": kernels::active().name()});
-        let at = |h: &HnswIndex, note: &str| {
-            let mut extra = common.clone();
-            extra["ef_search"] = json!(h.params().ef_search);
-            extra["ef_chosen_by"] = json!(note);
-            row(
-                n,
-                "choreo-hnsw",
-                Some(build_s),
-                measure(&queries, &truth, |q| h.search(q, 10, None)),
-                extra,
-            )
-        };
-        rows.push(at(&h, "--ef-search"));
-        if b.target_recall > 0.0 {
-            // The smallest ef on the ladder reaching the target on these
-            // queries: how bench_faiss.py sets FAISS's efSearch too.
-            for ef in [10, 16, 24, 32, 48, 64, 96, 128, 192, 256, 384, 512] {
-                h.set_ef_search(ef);
-                let r = measure(&queries, &truth, |q| h.search(q, 10, None)).3;
-                if r >= b.target_recall || ef == 512 {
-                    rows.push(at(&h, &format!("recall>={}", b.target_recall)));
-                    break;
-                }
-            }
-            // What the server picks: held-out stored vectors as queries.
-            drop(h);
-            let t = Instant::now();
-            let h = HnswIndex::build_calibrated(b.metric, b.dim, p, &items, 100, b.target_recall);
-            let mut extra = common.clone();
-            extra["ef_search"] = json!(h.params().ef_search);
-            extra["ef_chosen_by"] = json!("server calibration (held-out stored vectors)");
-            extra["calibration_recall"] = json!(h.recall_at_10());
-            rows.push(row(
-                n,
-                "choreo-hnsw",
-                Some(t.elapsed().as_secs_f64()),
-                measure(&queries, &truth, |q| h.search(q, 10, None)),
-                extra,
-            ));
+        for &backend in &b.backends {
+            let p = HnswParams {
+                backend,
+                ..b.params
+            };
+            rows.extend(hnsw_rows(b, n, p, &items, &queries, &truth));
         }
     }
     println!(
@@ -159,4 +121,66 @@ pub fn run(b: &Bench) -> Result<()> {
         json!({"rows": rows, "dim": b.dim, "metric": b.metric, "queries": b.queries})
     );
     Ok(())
+}
+
+/// One graph's rows: at `--ef-search`, at the smallest ef reaching the
+/// target recall on the queries, and as the server builds it (ef chosen on
+/// held-out stored vectors).
+fn hnsw_rows(
+    b: &Bench,
+    n: usize,
+    p: HnswParams,
+    items: &[(usize, Vec<f32>)],
+    queries: &[Vec<f32>],
+    truth: &[Vec<Hit>],
+) -> Vec<Value> {
+    let mut rows = Vec::new();
+    let t = Instant::now();
+    let mut h = HnswIndex::new(b.metric, b.dim, n, p);
+    h.add_batch(items);
+    let build_s = t.elapsed().as_secs_f64();
+    let name = format!("choreo-hnsw ({})", p.backend.name());
+    let common = json!({"m": p.m, "ef_construction": p.ef_construction,
+                        "kernel": kernels::active().name()});
+    let at = |h: &HnswIndex, note: &str| {
+        let mut extra = common.clone();
+        extra["ef_search"] = json!(h.params().ef_search);
+        extra["ef_chosen_by"] = json!(note);
+        row(
+            n,
+            &name,
+            Some(build_s),
+            measure(queries, truth, |q| h.search(q, 10, None)),
+            extra,
+        )
+    };
+    rows.push(at(&h, "--ef-search"));
+    if b.target_recall <= 0.0 {
+        return rows;
+    }
+    // The smallest ef on the ladder reaching the target on these queries:
+    // how bench_faiss.py sets FAISS's efSearch too.
+    for ef in [10, 16, 24, 32, 48, 64, 96, 128, 192, 256, 384, 512] {
+        h.set_ef_search(ef);
+        let r = measure(queries, truth, |q| h.search(q, 10, None)).3;
+        if r >= b.target_recall || ef == 512 {
+            rows.push(at(&h, &format!("recall>={}", b.target_recall)));
+            break;
+        }
+    }
+    drop(h);
+    let t = Instant::now();
+    let h = HnswIndex::build_calibrated(b.metric, b.dim, p, items, 100, b.target_recall);
+    let mut extra = common.clone();
+    extra["ef_search"] = json!(h.params().ef_search);
+    extra["ef_chosen_by"] = json!("server calibration (held-out stored vectors)");
+    extra["calibration_recall"] = json!(h.recall_at_10());
+    rows.push(row(
+        n,
+        &name,
+        Some(t.elapsed().as_secs_f64()),
+        measure(queries, truth, |q| h.search(q, 10, None)),
+        extra,
+    ));
+    rows
 }

@@ -34,6 +34,36 @@ pub struct HnswParams {
     pub ef_construction: usize,
     /// Candidate list size at query time (at least k).
     pub ef_search: usize,
+    /// Which graph implementation holds the points.
+    #[serde(default)]
+    pub backend: Backend,
+}
+
+/// The HNSW graph behind an [`HnswIndex`].
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Backend {
+    /// hnsw_rs 0.3 (the design card's; parallel build).
+    #[default]
+    HnswRs,
+    /// choreo's flat-array HNSW ([`super::flat`]).
+    Flat,
+}
+
+impl Backend {
+    pub fn parse(s: &str) -> Option<Backend> {
+        match s {
+            "hnsw_rs" | "hnsw-rs" => Some(Backend::HnswRs),
+            "flat" => Some(Backend::Flat),
+            _ => None,
+        }
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::HnswRs => "hnsw_rs",
+            Backend::Flat => "flat",
+        }
+    }
 }
 
 impl Default for HnswParams {
@@ -42,6 +72,7 @@ impl Default for HnswParams {
             m: 24,
             ef_construction: 200,
             ef_search: 128,
+            backend: Backend::default(),
         }
     }
 }
@@ -65,6 +96,7 @@ self_cell::self_cell!(
 );
 
 enum Graph {
+    Flat(super::flat::FlatGraph),
     Cos(CosGraph<'static>),
     L2(L2Graph<'static>),
     LoadedCos(LoadedCos),
@@ -104,6 +136,12 @@ impl HnswIndex {
         let max_layer = 16;
         let cap = capacity.max(1);
         let graph = match metric {
+            _ if params.backend == Backend::Flat => Graph::Flat(super::flat::FlatGraph::new(
+                metric,
+                dim,
+                params.m,
+                params.ef_construction,
+            )),
             Metric::Cosine => Graph::Cos(Hnsw::new(
                 params.m,
                 cap,
@@ -219,6 +257,7 @@ impl HnswIndex {
             .collect();
         let refs: Vec<(&Vec<f32>, usize)> = prepared.iter().map(|(v, id)| (v, *id)).collect();
         match &self.graph {
+            Graph::Flat(f) => refs.iter().for_each(|(v, id)| f.insert(*id, v)),
             Graph::Cos(h) => h.parallel_insert(&refs),
             Graph::L2(h) => h.parallel_insert(&refs),
             Graph::LoadedCos(h) => h.with_dependent(|_, g| g.parallel_insert(&refs)),
@@ -242,6 +281,10 @@ impl HnswIndex {
             let _ = std::fs::remove_file(dir.join(format!("{name}.{ext}")));
         }
         let dumped = match &self.graph {
+            Graph::Flat(f) => {
+                f.save(&dir.join(format!("{name}.flat")))?;
+                name.clone()
+            }
             Graph::Cos(h) => h.file_dump(dir, &name)?,
             Graph::L2(h) => h.file_dump(dir, &name)?,
             Graph::LoadedCos(h) => h.with_dependent(|_, g| g.file_dump(dir, &name))?,
@@ -262,7 +305,7 @@ impl HnswIndex {
         if let Some(old) = old.filter(|o| o.dump_basename != dumped) {
             // Only files this index wrote (its own stem), never anything else.
             if old.dump_basename.starts_with(stem) {
-                for ext in ["hnsw.graph", "hnsw.data"] {
+                for ext in ["hnsw.graph", "hnsw.data", "flat"] {
                     let _ = std::fs::remove_file(dir.join(format!("{}.{ext}", old.dump_basename)));
                 }
             }
@@ -302,6 +345,28 @@ impl HnswIndex {
             return Ok(None);
         }
         let dir = base.parent().unwrap_or(Path::new(".")).to_path_buf();
+        if meta.params.backend == Backend::Flat {
+            let f = super::flat::FlatGraph::load(
+                &dir.join(format!("{}.flat", meta.dump_basename)),
+                metric,
+                dim,
+            )?;
+            if f.len() != meta.count {
+                anyhow::bail!(
+                    "index dump holds {} points, its meta says {}",
+                    f.len(),
+                    meta.count
+                );
+            }
+            return Ok(Some(HnswIndex {
+                metric,
+                dim,
+                count: AtomicUsize::new(meta.count),
+                params: meta.params,
+                recall_at_10: meta.recall_at_10,
+                graph: Graph::Flat(f),
+            }));
+        }
         let io = HnswIo::new(&dir, &meta.dump_basename);
         // hnsw_rs unwraps on some corrupt dumps; a panic here means "corrupt".
         let graph =
@@ -421,6 +486,7 @@ impl AnnIndex for HnswIndex {
         let f = filter.map(FilterFn);
         let fref: Option<&dyn FilterT> = f.as_ref().map(|f| f as &dyn FilterT);
         let res = match &self.graph {
+            Graph::Flat(f) => return f.search(&q, k, ef, filter),
             Graph::Cos(h) => h.search_filter(&q, k, ef, fref),
             Graph::L2(h) => h.search_filter(&q, k, ef, fref),
             Graph::LoadedCos(h) => h.with_dependent(|_, g| g.search_filter(&q, k, ef, fref)),
@@ -456,7 +522,14 @@ mod tests {
         let data = latent(3000, dim, 1);
         let queries = latent(100, dim, 2);
         let dir = tempfile::tempdir().unwrap();
-        for metric in Metric::ALL {
+        for (metric, backend) in Metric::ALL
+            .into_iter()
+            .flat_map(|m| [(m, Backend::HnswRs), (m, Backend::Flat)])
+        {
+            let params = HnswParams {
+                backend,
+                ..Default::default()
+            };
             let exact = ExactIndex::new(metric, dim);
             let items: Vec<(usize, Vec<f32>)> = data.iter().cloned().enumerate().collect();
             for (i, v) in &items {
@@ -464,16 +537,17 @@ mod tests {
             }
             // ef_search chosen for recall@10 >= 0.99 on held-out stored
             // vectors, measured against exact search, and kept in the meta.
-            let h =
-                HnswIndex::build_calibrated(metric, dim, HnswParams::default(), &items, 100, 0.99);
+            let h = HnswIndex::build_calibrated(metric, dim, params, &items, 100, 0.99);
             assert_eq!(h.len(), items.len());
             let (ef, r) = (h.params().ef_search, h.recall_at_10().unwrap());
             assert!(
                 r >= 0.99 && ef <= 1024,
-                "{}: ef {ef} recall {r}",
+                "{} {backend:?}: ef {ef} recall {r}",
                 metric.name()
             );
-            let base = dir.path().join(format!("ix-{}", metric.name()));
+            let base = dir
+                .path()
+                .join(format!("ix-{}-{}", metric.name(), backend.name()));
             h.save(&base, 7).unwrap();
             let loaded = HnswIndex::load(&base, metric, dim, data.len(), 7)
                 .unwrap()
@@ -494,14 +568,60 @@ mod tests {
                     })
                     .sum::<f64>()
                     / queries.len() as f64;
-                assert!(r >= 0.98, "{}: recall {r}", metric.name());
+                assert!(r >= 0.98, "{} {backend:?}: recall {r}", metric.name());
             }
-            // Filters hold.
+            // Distances are the metric's own (the exact index's).
+            let (a, b) = (
+                &h.search(&queries[1], 3, None),
+                &exact.search(&queries[1], 3, None),
+            );
+            if a[0].id == b[0].id {
+                assert!((a[0].distance - b[0].distance).abs() < 1e-4, "{a:?} {b:?}");
+            }
+            // Filters hold, and still fill k.
             let even = |id: usize| id % 2 == 0;
-            assert!(h
-                .search(&queries[0], 10, Some(&even))
-                .iter()
-                .all(|x| x.id % 2 == 0));
+            let f = h.search(&queries[0], 10, Some(&even));
+            assert!(
+                f.len() == 10 && f.iter().all(|x| x.id % 2 == 0),
+                "{backend:?}"
+            );
+            // Live inserts are found at once.
+            h.add_batch(&[(99_999, queries[3].clone())]);
+            assert_eq!(h.search(&queries[3], 1, None)[0].id, 99_999);
         }
+    }
+
+    /// A truncated or scribbled flat dump is an error, never an index.
+    #[test]
+    fn corrupt_flat_dump_is_refused() {
+        let dim = 16;
+        let items: Vec<(usize, Vec<f32>)> = super::super::synthetic_latent(200, dim, 4)
+            .into_iter()
+            .enumerate()
+            .collect();
+        let params = HnswParams {
+            backend: Backend::Flat,
+            ..Default::default()
+        };
+        let h = HnswIndex::new(Metric::Cosine, dim, items.len(), params);
+        h.add_batch(&items);
+        let dir = tempfile::tempdir().unwrap();
+        let base = dir.path().join("ix");
+        let meta = h.save(&base, 1).unwrap();
+        let file = dir.path().join(format!("{}.flat", meta.dump_basename));
+        let good = std::fs::read(&file).unwrap();
+        assert!(HnswIndex::load(&base, Metric::Cosine, dim, 200, 1)
+            .unwrap()
+            .is_some());
+        std::fs::write(&file, &good[..good.len() - 5]).unwrap();
+        assert!(HnswIndex::load(&base, Metric::Cosine, dim, 200, 1).is_err());
+        let mut bad = good.clone();
+        let links_at = good.len() - 4 * 10;
+        bad[links_at..links_at + 4].copy_from_slice(&5000u32.to_le_bytes());
+        std::fs::write(&file, &bad).unwrap();
+        assert!(HnswIndex::load(&base, Metric::Cosine, dim, 200, 1).is_err());
+        assert!(HnswIndex::load(&base, Metric::Euclidean, dim, 200, 1)
+            .unwrap()
+            .is_none());
     }
 }

@@ -6,6 +6,7 @@
 //! `1 − a·b` and the reported score is the cosine similarity. Euclidean
 //! scores are distances (smaller is closer).
 
+pub mod flat;
 pub mod hnsw;
 pub mod kernels;
 

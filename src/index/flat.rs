@@ -1,0 +1,470 @@
+//! HNSW on flat arrays (Malkov & Yashunin, 2018): the vectors in one
+//! contiguous `n × dim` block, layer-0 links in one `n × 2M` block of
+//! `u32`, upper-layer links per node, a visited set stamped with a search
+//! counter instead of cleared. No per-point allocation, no `Arc` or lock
+//! per node: a search reads arrays. Inserts take the graph's write lock one
+//! point at a time (searches hold the read lock), which suits the live
+//! searcher's few inserts per write; a bulk build inserts in order on one
+//! thread.
+//!
+//! Distances: cosine is `1 − a·b` on unit vectors, Euclidean is the
+//! squared distance inside the graph (same order) and its square root
+//! outside.
+
+use super::{kernels, Hit, Metric};
+use std::cell::RefCell;
+use std::cmp::{Ordering, Reverse};
+use std::collections::BinaryHeap;
+use std::io::{Read, Write};
+use std::path::Path;
+use std::sync::RwLock;
+
+const NONE: u32 = u32::MAX;
+const MAGIC: &[u8; 8] = b"CHFHNSW1";
+
+#[derive(Clone, Copy, PartialEq, PartialOrd)]
+struct D(f32);
+impl Eq for D {}
+impl Ord for D {
+    fn cmp(&self, o: &Self) -> Ordering {
+        self.0.total_cmp(&o.0)
+    }
+}
+
+#[derive(Default)]
+struct Graph {
+    ids: Vec<u64>,
+    vecs: Vec<f32>,
+    levels: Vec<u8>,
+    links0: Vec<u32>,
+    /// Per node, levels 1..=level, `m` links each (empty for level 0).
+    upper: Vec<Vec<u32>>,
+    entry: u32,
+    max_level: usize,
+}
+
+pub struct FlatGraph {
+    metric: Metric,
+    dim: usize,
+    m: usize,
+    m0: usize,
+    ef_construction: usize,
+    level_mult: f64,
+    g: RwLock<Graph>,
+    rng: std::sync::Mutex<u64>,
+}
+
+thread_local! {
+    static VISITED: RefCell<(Vec<u32>, u32)> = const { RefCell::new((Vec::new(), 0)) };
+}
+
+impl FlatGraph {
+    pub fn new(metric: Metric, dim: usize, m: usize, ef_construction: usize) -> FlatGraph {
+        let m = m.max(2);
+        FlatGraph {
+            metric,
+            dim,
+            m,
+            m0: 2 * m,
+            ef_construction: ef_construction.max(m),
+            level_mult: 1.0 / (m as f64).ln(),
+            g: RwLock::new(Graph {
+                entry: NONE,
+                ..Default::default()
+            }),
+            rng: std::sync::Mutex::new(0x2545_F491_4F6C_DD1D),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.g.read().expect("graph lock").ids.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    #[inline]
+    fn dist(&self, a: &[f32], b: &[f32]) -> f32 {
+        match self.metric {
+            Metric::Cosine => 1.0 - kernels::dot(a, b),
+            Metric::Euclidean => kernels::l2sq(a, b),
+        }
+    }
+
+    /// The distance as the index reports it.
+    fn reported(&self, d: f32) -> f32 {
+        match self.metric {
+            Metric::Cosine => d.max(0.0),
+            Metric::Euclidean => d.max(0.0).sqrt(),
+        }
+    }
+
+    fn random_level(&self) -> usize {
+        let mut s = self.rng.lock().expect("rng");
+        // xorshift64*
+        *s ^= *s >> 12;
+        *s ^= *s << 25;
+        *s ^= *s >> 27;
+        let r = s.wrapping_mul(0x2545_F491_4F6C_DD1D);
+        let u = ((r >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+        ((-u.ln() * self.level_mult) as usize).min(30)
+    }
+
+    fn vec<'a>(&self, g: &'a Graph, i: u32) -> &'a [f32] {
+        let i = i as usize;
+        &g.vecs[i * self.dim..(i + 1) * self.dim]
+    }
+
+    fn links<'a>(&self, g: &'a Graph, i: u32, level: usize) -> &'a [u32] {
+        let i = i as usize;
+        if level == 0 {
+            &g.links0[i * self.m0..(i + 1) * self.m0]
+        } else {
+            &g.upper[i][(level - 1) * self.m..level * self.m]
+        }
+    }
+
+    fn links_mut<'a>(&self, g: &'a mut Graph, i: u32, level: usize) -> &'a mut [u32] {
+        let i = i as usize;
+        if level == 0 {
+            &mut g.links0[i * self.m0..(i + 1) * self.m0]
+        } else {
+            &mut g.upper[i][(level - 1) * self.m..level * self.m]
+        }
+    }
+
+    /// Greedy walk to the closest node on one upper layer.
+    fn greedy(&self, g: &Graph, q: &[f32], mut ep: u32, mut d: f32, level: usize) -> (u32, f32) {
+        loop {
+            let mut moved = false;
+            for &n in self.links(g, ep, level) {
+                if n == NONE {
+                    break;
+                }
+                let dn = self.dist(q, self.vec(g, n));
+                if dn < d {
+                    (ep, d, moved) = (n, dn, true);
+                }
+            }
+            if !moved {
+                return (ep, d);
+            }
+        }
+    }
+
+    /// Beam search on one layer: up to `ef` closest (distance, node),
+    /// ascending; only nodes passing `keep` enter the results, all guide
+    /// the walk.
+    fn layer_search(
+        &self,
+        g: &Graph,
+        q: &[f32],
+        ep: u32,
+        ef: usize,
+        level: usize,
+        keep: &dyn Fn(u32) -> bool,
+    ) -> Vec<(f32, u32)> {
+        VISITED.with(|v| {
+            let (marks, stamp) = &mut *v.borrow_mut();
+            if marks.len() < g.ids.len() {
+                marks.resize(g.ids.len(), 0);
+            }
+            *stamp = stamp.wrapping_add(1);
+            if *stamp == 0 {
+                marks.iter_mut().for_each(|m| *m = 0);
+                *stamp = 1;
+            }
+            let stamp = *stamp;
+            let mut cand: BinaryHeap<Reverse<(D, u32)>> = BinaryHeap::with_capacity(ef * 2);
+            let mut best: BinaryHeap<(D, u32)> = BinaryHeap::with_capacity(ef + 1);
+            let d0 = self.dist(q, self.vec(g, ep));
+            marks[ep as usize] = stamp;
+            cand.push(Reverse((D(d0), ep)));
+            if keep(ep) {
+                best.push((D(d0), ep));
+            }
+            while let Some(Reverse((D(dc), c))) = cand.pop() {
+                if best.len() >= ef && dc > best.peek().map_or(f32::INFINITY, |b| b.0 .0) {
+                    break;
+                }
+                for &n in self.links(g, c, level) {
+                    if n == NONE {
+                        break;
+                    }
+                    if marks[n as usize] == stamp {
+                        continue;
+                    }
+                    marks[n as usize] = stamp;
+                    let dn = self.dist(q, self.vec(g, n));
+                    let worst = best.peek().map_or(f32::INFINITY, |b| b.0 .0);
+                    if best.len() < ef || dn < worst {
+                        cand.push(Reverse((D(dn), n)));
+                        if keep(n) {
+                            best.push((D(dn), n));
+                            if best.len() > ef {
+                                best.pop();
+                            }
+                        }
+                    }
+                }
+            }
+            let mut out: Vec<(f32, u32)> = best.into_iter().map(|(D(d), n)| (d, n)).collect();
+            out.sort_by(|a, b| a.0.total_cmp(&b.0));
+            out
+        })
+    }
+
+    /// The neighbour-selection heuristic: closest first, skipping a
+    /// candidate closer to an already chosen neighbour than to the point
+    /// (keeps links spread over directions); topped up with the skipped
+    /// closest when fewer than `m` survive.
+    fn select(&self, g: &Graph, cands: &[(f32, u32)], m: usize) -> Vec<u32> {
+        let mut chosen: Vec<(f32, u32)> = Vec::with_capacity(m);
+        let mut skipped = Vec::new();
+        for &(d, c) in cands {
+            if chosen.len() >= m {
+                break;
+            }
+            let vc = self.vec(g, c);
+            if chosen
+                .iter()
+                .all(|&(_, r)| self.dist(vc, self.vec(g, r)) > d)
+            {
+                chosen.push((d, c));
+            } else {
+                skipped.push(c);
+            }
+        }
+        let mut out: Vec<u32> = chosen.into_iter().map(|(_, c)| c).collect();
+        for c in skipped {
+            if out.len() >= m {
+                break;
+            }
+            out.push(c);
+        }
+        out
+    }
+
+    /// Insert one raw (already prepared) vector.
+    pub fn insert(&self, id: usize, v: &[f32]) {
+        assert_eq!(v.len(), self.dim, "vector dimension");
+        let level = self.random_level();
+        let mut g = self.g.write().expect("graph lock");
+        let me = g.ids.len() as u32;
+        g.ids.push(id as u64);
+        g.vecs.extend_from_slice(v);
+        g.levels.push(level as u8);
+        g.links0.extend(std::iter::repeat_n(NONE, self.m0));
+        g.upper.push(vec![NONE; level * self.m]);
+        if g.entry == NONE {
+            g.entry = me;
+            g.max_level = level;
+            return;
+        }
+        let all = |_: u32| true;
+        let (mut ep, mut d) = (g.entry, self.dist(v, self.vec(&g, g.entry)));
+        for l in (level + 1..=g.max_level).rev() {
+            (ep, d) = self.greedy(&g, v, ep, d, l);
+        }
+        for l in (0..=level.min(g.max_level)).rev() {
+            let cands = self.layer_search(&g, v, ep, self.ef_construction, l, &all);
+            let cap = if l == 0 { self.m0 } else { self.m };
+            let chosen = self.select(&g, &cands, self.m);
+            {
+                let mine = self.links_mut(&mut g, me, l);
+                for (slot, &n) in mine.iter_mut().zip(&chosen) {
+                    *slot = n;
+                }
+            }
+            for &n in &chosen {
+                self.link_back(&mut g, n, me, l, cap);
+            }
+            ep = cands[0].1;
+        }
+        if level > g.max_level {
+            g.max_level = level;
+            g.entry = me;
+        }
+    }
+
+    /// Add `me` to `n`'s links on `level`, re-selecting when full.
+    fn link_back(&self, g: &mut Graph, n: u32, me: u32, level: usize, cap: usize) {
+        let links = self.links(g, n, level);
+        if let Some(free) = links.iter().position(|&x| x == NONE) {
+            self.links_mut(g, n, level)[free] = me;
+            return;
+        }
+        let vn = self.vec(g, n);
+        let mut cands: Vec<(f32, u32)> = links
+            .iter()
+            .chain(std::iter::once(&me))
+            .map(|&c| (self.dist(vn, self.vec(g, c)), c))
+            .collect();
+        cands.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let kept = self.select(g, &cands, cap);
+        let slots = self.links_mut(g, n, level);
+        for (i, s) in slots.iter_mut().enumerate() {
+            *s = kept.get(i).copied().unwrap_or(NONE);
+        }
+    }
+
+    /// The `k` nearest (external id, reported distance) to a prepared query
+    /// among ids passing `filter`, closest first.
+    pub fn search(
+        &self,
+        q: &[f32],
+        k: usize,
+        ef: usize,
+        filter: Option<&(dyn Fn(usize) -> bool + Sync)>,
+    ) -> Vec<Hit> {
+        let g = self.g.read().expect("graph lock");
+        if g.entry == NONE || k == 0 {
+            return Vec::new();
+        }
+        let (mut ep, mut d) = (g.entry, self.dist(q, self.vec(&g, g.entry)));
+        for l in (1..=g.max_level).rev() {
+            (ep, d) = self.greedy(&g, q, ep, d, l);
+        }
+        let ids = &g.ids;
+        let keep = |i: u32| filter.is_none_or(|f| f(ids[i as usize] as usize));
+        let found = self.layer_search(&g, q, ep, ef.max(k), 0, &keep);
+        found
+            .into_iter()
+            .take(k)
+            .map(|(d, i)| Hit {
+                id: ids[i as usize] as usize,
+                distance: self.reported(d),
+            })
+            .collect()
+    }
+
+    /// Write the graph to `path` (a temporary name, then renamed).
+    pub fn save(&self, path: &Path) -> std::io::Result<()> {
+        let g = self.g.read().expect("graph lock");
+        let tmp = path.with_extension("partial");
+        let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        w.write_all(MAGIC)?;
+        let head = [
+            self.dim as u64,
+            self.m as u64,
+            self.ef_construction as u64,
+            g.ids.len() as u64,
+            g.entry as u64,
+            g.max_level as u64,
+            match self.metric {
+                Metric::Cosine => 0,
+                Metric::Euclidean => 1,
+            },
+        ];
+        for h in head {
+            w.write_all(&h.to_le_bytes())?;
+        }
+        for id in &g.ids {
+            w.write_all(&id.to_le_bytes())?;
+        }
+        for x in &g.vecs {
+            w.write_all(&x.to_le_bytes())?;
+        }
+        w.write_all(&g.levels)?;
+        for x in &g.links0 {
+            w.write_all(&x.to_le_bytes())?;
+        }
+        for u in &g.upper {
+            for x in u {
+                w.write_all(&x.to_le_bytes())?;
+            }
+        }
+        w.flush()?;
+        drop(w);
+        std::fs::rename(tmp, path)
+    }
+
+    /// Read a graph [`FlatGraph::save`] wrote; every length and link is
+    /// checked, so a truncated or corrupt file is an error, never a wrong
+    /// answer.
+    pub fn load(path: &Path, metric: Metric, dim: usize) -> anyhow::Result<FlatGraph> {
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)?.read_to_end(&mut bytes)?;
+        let bad = |what: &str| anyhow::anyhow!("{}: {what}", path.display());
+        if bytes.len() < 8 + 7 * 8 || &bytes[..8] != MAGIC {
+            return Err(bad("not a choreo flat HNSW file"));
+        }
+        let mut at = 8;
+        let u64s = |n: usize, at: &mut usize| -> anyhow::Result<Vec<u64>> {
+            let end = *at + 8 * n;
+            let s = bytes.get(*at..end).ok_or_else(|| bad("truncated"))?;
+            *at = end;
+            Ok(s.chunks_exact(8)
+                .map(|c| u64::from_le_bytes(c.try_into().expect("8")))
+                .collect())
+        };
+        let h = u64s(7, &mut at)?;
+        let (fdim, m, efc, n, entry, max_level, fmetric) = (
+            h[0] as usize,
+            h[1] as usize,
+            h[2] as usize,
+            h[3] as usize,
+            h[4] as u32,
+            h[5] as usize,
+            h[6],
+        );
+        let want_metric = match metric {
+            Metric::Cosine => 0,
+            Metric::Euclidean => 1,
+        };
+        if fdim != dim || fmetric != want_metric || m < 2 || max_level > 30 {
+            return Err(bad("built for another metric, dimension or shape"));
+        }
+        let ids = u64s(n, &mut at)?;
+        let f32s = |count: usize, at: &mut usize| -> anyhow::Result<Vec<f32>> {
+            let end = *at + 4 * count;
+            let s = bytes.get(*at..end).ok_or_else(|| bad("truncated"))?;
+            *at = end;
+            Ok(s.chunks_exact(4)
+                .map(|c| f32::from_le_bytes(c.try_into().expect("4")))
+                .collect())
+        };
+        let vecs = f32s(n * dim, &mut at)?;
+        let levels = bytes
+            .get(at..at + n)
+            .ok_or_else(|| bad("truncated"))?
+            .to_vec();
+        at += n;
+        let u32s = |count: usize, at: &mut usize| -> anyhow::Result<Vec<u32>> {
+            let end = *at + 4 * count;
+            let s = bytes.get(*at..end).ok_or_else(|| bad("truncated"))?;
+            *at = end;
+            Ok(s.chunks_exact(4)
+                .map(|c| u32::from_le_bytes(c.try_into().expect("4")))
+                .collect())
+        };
+        let links0 = u32s(n * 2 * m, &mut at)?;
+        let mut upper = Vec::with_capacity(n);
+        for &l in &levels {
+            upper.push(u32s(l as usize * m, &mut at)?);
+        }
+        if at != bytes.len() {
+            return Err(bad("trailing bytes"));
+        }
+        let valid = |x: &u32| *x == NONE || (*x as usize) < n;
+        if !links0.iter().all(valid)
+            || !upper.iter().flatten().all(valid)
+            || (n > 0 && (entry as usize >= n || levels[entry as usize] as usize != max_level))
+            || vecs.iter().any(|x| !x.is_finite())
+        {
+            return Err(bad("links, entry point or vectors out of range"));
+        }
+        let f = FlatGraph::new(metric, dim, m, efc);
+        *f.g.write().expect("graph lock") = Graph {
+            ids,
+            vecs,
+            levels,
+            links0,
+            upper,
+            entry: if n == 0 { NONE } else { entry },
+            max_level,
+        };
+        Ok(f)
+    }
+}
