@@ -3,6 +3,7 @@
 # synthetic vectors and queries, at the same M / efConstruction, each with
 # efSearch set for recall@10 >= 0.99 against exact search:
 #   cargo build --release && scripts/bench_index.sh [SIZES] [M] [EFC]
+# BACKENDS=flat (or hnsw_rs, or both: the default) picks choreo's graphs.
 # Needs numpy and faiss-cpu (pip install faiss-cpu). Prints a markdown
 # table for bench/RESULTS.md.
 set -euo pipefail
@@ -15,7 +16,7 @@ bin=target/release/choreo
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 "$bin" bench index --sizes "$sizes" --queries 200 --m "$m" --ef-construction "$efc" \
-  --dump "$work" > "$work/choreo.json"
+  --backend "${BACKENDS:-hnsw_rs,flat}" --dump "$work" > "$work/choreo.json"
 FAISS_M=$m FAISS_EFC=$efc python3 scripts/bench_faiss.py "$work" ${sizes//,/ } > "$work/faiss.json"
 python3 - "$work/choreo.json" "$work/faiss.json" <<'PY'
 import json, sys

@@ -65,6 +65,10 @@ pub struct ServeConfig {
     /// its id (echoed in `x-request-id`), route, status and duration.
     #[arg(long, env = "CHOREO_LOG_FORMAT", value_enum, default_value = "text")]
     pub log_format: LogFormat,
+    /// The HNSW graph: `flat` (choreo's flat arrays, faster queries) or
+    /// `hnsw_rs`. An index saved by the other one is rebuilt.
+    #[arg(long, env = "CHOREO_HNSW_BACKEND", value_enum, default_value = "flat")]
+    pub hnsw_backend: crate::index::hnsw::Backend,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -170,7 +174,14 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
             r.errors.len()
         );
     }
-    let searcher = Searcher::open(store.clone(), HnswParams::default()).await?;
+    let searcher = Searcher::open(
+        store.clone(),
+        HnswParams {
+            backend: cfg.hnsw_backend,
+            ..Default::default()
+        },
+    )
+    .await?;
     let model = if cfg.model.exists() {
         let t0 = std::time::Instant::now();
         let m = crate::lm::model::MotionModel::load(&cfg.model)

@@ -26,6 +26,7 @@ fn config(dir: &std::path::Path, cors: &[&str]) -> ServeConfig {
         inbetweener: root.join("models/inbetween"),
         cors_origins: cors.iter().map(|s| s.to_string()).collect(),
         log_format: Default::default(),
+        hnsw_backend: choreo::index::hnsw::Backend::Flat,
     }
 }
 
@@ -302,6 +303,28 @@ async fn websocket_duet_answers_frame_for_frame_and_refuses_a_wrong_frame() {
         "{e}"
     );
     assert!(recv(&mut ws).await.is_none());
+
+    // A client that has full SMPL-24 frames sends them as they are: the
+    // server folds them onto the model's 13 joints.
+    let mut full = connect(running.http, "/v1/duet/ws").await;
+    let smpl24 = |lift: f64| {
+        json!({"fps": 20.0, "skeleton": "smpl24",
+               "rotations": [vec![[0.0, 0.0, lift]; 24]],
+               "translation": [[0.0, 0.9, 0.0]]})
+    };
+    let setup = json!({"prompt_joints": ["pelvis"], "frame": smpl24(0.0)});
+    full.send(Message::Text(setup.to_string().into()))
+        .await
+        .unwrap();
+    assert_eq!(recv(&mut full).await.unwrap()["frame"]["index"], 0);
+    full.send(Message::Text(
+        json!({"frame": smpl24(0.2)}).to_string().into(),
+    ))
+    .await
+    .unwrap();
+    let r = recv(&mut full).await.unwrap();
+    assert_eq!(r["frame"]["index"], 1, "{r}");
+    assert_eq!(r["frame"]["rotations"].as_array().unwrap().len(), 13);
     running.shutdown().await.unwrap();
 }
 

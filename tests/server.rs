@@ -118,6 +118,7 @@ fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
         inbetweener: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/inbetween"),
         cors_origins: vec![],
         log_format: Default::default(),
+        hnsw_backend: choreo::index::hnsw::Backend::Flat,
     }
 }
 

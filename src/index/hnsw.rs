@@ -40,11 +40,14 @@ pub struct HnswParams {
 }
 
 /// The HNSW graph behind an [`HnswIndex`].
-#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+/// (A meta without one was written by hnsw_rs, the only graph then; new
+/// indexes default to the flat graph, [`HnswParams::default`].)
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum Backend {
     /// hnsw_rs 0.3 (the design card's; parallel build).
     #[default]
+    #[value(name = "hnsw_rs")]
     HnswRs,
     /// choreo's flat-array HNSW ([`super::flat`]).
     Flat,
@@ -72,7 +75,7 @@ impl Default for HnswParams {
             m: 24,
             ef_construction: 200,
             ef_search: 128,
-            backend: Backend::default(),
+            backend: Backend::Flat,
         }
     }
 }

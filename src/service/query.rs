@@ -264,6 +264,8 @@ impl Searcher {
                     .await
                     .map_err(|err| fail(err.to_string()))?;
             match loaded {
+                // Built by the other graph: rebuilt with the one configured.
+                Ok(Some(ix)) if ix.params().backend != params.backend => {}
                 Ok(Some(ix)) => {
                     let dead = ix.len().saturating_sub(live);
                     return Ok(Entry {
