@@ -343,26 +343,32 @@ async fn get_motion(
     ))
 }
 
+/// A download: its content type and file name.
+fn attachment(content_type: &str, filename: String, body: impl IntoResponse) -> Response {
+    (
+        [
+            (axum::http::header::CONTENT_TYPE, content_type.to_string()),
+            (
+                axum::http::header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"{filename}\""),
+            ),
+        ],
+        body,
+    )
+        .into_response()
+}
+
 async fn export_glb(
     State(s): State<Arc<AppState>>,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Response, ApiError> {
     let id = motion_id(id)?;
     let bytes = super::export_glb(&s, id).await?;
-    Ok((
-        [
-            (
-                axum::http::header::CONTENT_TYPE,
-                "model/gltf-binary".to_string(),
-            ),
-            (
-                axum::http::header::CONTENT_DISPOSITION,
-                format!("attachment; filename=\"motion-{id}.glb\""),
-            ),
-        ],
+    Ok(attachment(
+        "model/gltf-binary",
+        format!("motion-{id}.glb"),
         bytes,
-    )
-        .into_response())
+    ))
 }
 
 async fn export_motion(
@@ -371,20 +377,11 @@ async fn export_motion(
 ) -> Result<Response, ApiError> {
     let id = motion_id(id)?;
     let text = super::export_bvh(&s, id).await?;
-    Ok((
-        [
-            (
-                axum::http::header::CONTENT_TYPE,
-                "text/plain; charset=utf-8".to_string(),
-            ),
-            (
-                axum::http::header::CONTENT_DISPOSITION,
-                format!("attachment; filename=\"motion-{id}.bvh\""),
-            ),
-        ],
+    Ok(attachment(
+        "text/plain; charset=utf-8",
+        format!("motion-{id}.bvh"),
         text,
-    )
-        .into_response())
+    ))
 }
 
 async fn delete_motion(

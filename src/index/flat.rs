@@ -417,15 +417,24 @@ impl FlatGraph {
             return Err(bad("not a choreo flat HNSW file"));
         }
         let mut at = 8;
-        let u64s = |n: usize, at: &mut usize| -> anyhow::Result<Vec<u64>> {
-            let end = *at + 8 * n;
-            let s = bytes.get(*at..end).ok_or_else(|| bad("truncated"))?;
+        // `n` little-endian words of `W` bytes from `at`, or "truncated".
+        fn words<const W: usize, T>(
+            bytes: &[u8],
+            at: &mut usize,
+            n: usize,
+            from: fn([u8; W]) -> T,
+        ) -> Option<Vec<T>> {
+            let end = at.checked_add(n.checked_mul(W)?)?;
+            let s = bytes.get(*at..end)?;
             *at = end;
-            Ok(s.chunks_exact(8)
-                .map(|c| u64::from_le_bytes(c.try_into().expect("8")))
-                .collect())
-        };
-        let h = u64s(7, &mut at)?;
+            Some(
+                s.chunks_exact(W)
+                    .map(|c| from(c.try_into().expect("word")))
+                    .collect(),
+            )
+        }
+        let truncated = || bad("truncated");
+        let h = words(&bytes, &mut at, 7, u64::from_le_bytes).ok_or_else(truncated)?;
         let (fdim, m, efc, n, entry, max_level, fmetric) = (
             h[0] as usize,
             h[1] as usize,
@@ -442,33 +451,15 @@ impl FlatGraph {
         if fdim != dim || fmetric != want_metric || m < 2 || max_level > 30 {
             return Err(bad("built for another metric, dimension or shape"));
         }
-        let ids = u64s(n, &mut at)?;
-        let f32s = |count: usize, at: &mut usize| -> anyhow::Result<Vec<f32>> {
-            let end = *at + 4 * count;
-            let s = bytes.get(*at..end).ok_or_else(|| bad("truncated"))?;
-            *at = end;
-            Ok(s.chunks_exact(4)
-                .map(|c| f32::from_le_bytes(c.try_into().expect("4")))
-                .collect())
-        };
-        let vecs = f32s(n * dim, &mut at)?;
-        let levels = bytes
-            .get(at..at + n)
-            .ok_or_else(|| bad("truncated"))?
-            .to_vec();
-        at += n;
-        let u32s = |count: usize, at: &mut usize| -> anyhow::Result<Vec<u32>> {
-            let end = *at + 4 * count;
-            let s = bytes.get(*at..end).ok_or_else(|| bad("truncated"))?;
-            *at = end;
-            Ok(s.chunks_exact(4)
-                .map(|c| u32::from_le_bytes(c.try_into().expect("4")))
-                .collect())
-        };
-        let links0 = u32s(n * 2 * m, &mut at)?;
+        let ids = words(&bytes, &mut at, n, u64::from_le_bytes).ok_or_else(truncated)?;
+        let vecs = words(&bytes, &mut at, n * dim, f32::from_le_bytes).ok_or_else(truncated)?;
+        let levels = words(&bytes, &mut at, n, u8::from_le_bytes).ok_or_else(truncated)?;
+        let links0 = words(&bytes, &mut at, n * 2 * m, u32::from_le_bytes).ok_or_else(truncated)?;
         let mut upper = Vec::with_capacity(n);
         for &l in &levels {
-            upper.push(u32s(l as usize * m, &mut at)?);
+            upper.push(
+                words(&bytes, &mut at, l as usize * m, u32::from_le_bytes).ok_or_else(truncated)?,
+            );
         }
         if at != bytes.len() {
             return Err(bad("trailing bytes"));

@@ -216,15 +216,9 @@ impl Store {
         .fetch_one(&mut *tx)
         .await
         .map_err(|e| self.db(e))?;
-        for (k, v) in &m.labels {
-            sqlx::query("INSERT INTO motion_labels (motion_id, kind, value) VALUES (?, ?, ?)")
-                .bind(id)
-                .bind(k)
-                .bind(v)
-                .execute(&mut *tx)
-                .await
-                .map_err(|e| self.db(e))?;
-        }
+        insert_labels(&mut tx, id, &m.labels)
+            .await
+            .map_err(|e| self.db(e))?;
         let flat: Vec<f32> = m.channels.iter().flat_map(|r| r.iter().copied()).collect();
         sqlx::query(
             "INSERT INTO motion_channels (motion_id, fps, frames, data) VALUES (?, 60.0, ?, ?)",
@@ -295,15 +289,9 @@ impl Store {
             .execute(&mut *tx)
             .await
             .map_err(|e| self.db(e))?;
-        for (k, v) in &merged {
-            sqlx::query("INSERT INTO motion_labels (motion_id, kind, value) VALUES (?, ?, ?)")
-                .bind(id)
-                .bind(k)
-                .bind(v)
-                .execute(&mut *tx)
-                .await
-                .map_err(|e| self.db(e))?;
-        }
+        insert_labels(&mut tx, id, &merged)
+            .await
+            .map_err(|e| self.db(e))?;
         bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
         tx.commit().await.map_err(|e| self.db(e))?;
         Ok(Some(merged))
@@ -567,6 +555,22 @@ impl Store {
             .map_err(|e| self.db(e))?;
         Ok(n * 1_000_000_007 + max.unwrap_or(0))
     }
+}
+
+async fn insert_labels(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    motion_id: i64,
+    labels: &Labels,
+) -> std::result::Result<(), sqlx::Error> {
+    for (k, v) in labels {
+        sqlx::query("INSERT INTO motion_labels (motion_id, kind, value) VALUES (?, ?, ?)")
+            .bind(motion_id)
+            .bind(k)
+            .bind(v)
+            .execute(&mut **tx)
+            .await?;
+    }
+    Ok(())
 }
 
 async fn insert_embedding(
