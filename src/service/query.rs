@@ -432,14 +432,20 @@ impl Searcher {
         };
         let (stored, reuse) = match &req.source {
             QuerySource::Stored(id) => {
-                let ch = self
+                // Only the segment's frames are read from the store.
+                let from = if req.start_s.is_finite() && req.start_s >= 0.0 {
+                    (req.start_s * FEATURE_FPS).round() as usize
+                } else {
+                    0
+                };
+                let (total, seg) = self
                     .store
-                    .channels(*id)
+                    .channel_range(*id, from, req.frames)
                     .await?
                     .ok_or(QueryError::NotFound(*id))?;
-                let start = self.segment(&req, &format!("motion {id}"), ch.len())?;
+                let start = self.segment(&req, &format!("motion {id}"), total)?;
                 let reuse = self.reusable(&req, *id, start).await?;
-                (Some((ch, start)), reuse)
+                (Some((seg, 0)), reuse)
             }
             QuerySource::Motion(_) => (None, HashMap::new()),
         };

@@ -474,6 +474,29 @@ impl Store {
             .collect())
     }
 
+    /// Frames `start..start + frames` (clipped at the end) of one motion's
+    /// channels, and its whole length in frames: only those bytes are read
+    /// and decoded (`substr` of the blob). `None` for an unknown id.
+    pub async fn channel_range(
+        &self,
+        motion_id: i64,
+        start: usize,
+        frames: usize,
+    ) -> Result<Option<(usize, Vec<[f32; CHANNELS]>)>> {
+        let row_bytes = CHANNELS * 4;
+        let row: Option<(i64, Vec<u8>)> = sqlx::query_as(
+            "SELECT frames, substr(data, ?, ?) FROM motion_channels WHERE motion_id = ?",
+        )
+        .bind(start.saturating_mul(row_bytes).saturating_add(1) as i64)
+        .bind(frames.saturating_mul(row_bytes) as i64)
+        .bind(motion_id)
+        .fetch_optional(&self.pool)
+        .await
+        .map_err(|e| self.db(e))?;
+        row.map(|(total, b)| Ok((total.max(0) as usize, self.decode_channels(motion_id, &b)?)))
+            .transpose()
+    }
+
     /// One window's stored embedding of one kind.
     pub async fn embedding(&self, window_id: i64, kind: Embedding) -> Result<Option<Vec<f32>>> {
         let row: Option<Vec<u8>> =
