@@ -98,12 +98,19 @@ fn bvh_errors_name_file_field_reason() {
 fn unknown_formats_and_empty_files() {
     for (name, bytes) in [
         ("x.txt", &b"hello"[..]),
+        // Content never decides the format: a pickle's first bytes under
+        // another name, and a BVH under no extension, are refused.
+        ("looks-like-a-pickle.txt", &[0x80, 0x04, 0x95, 0x00][..]),
+        ("take", b"HIERARCHY\nROOT r\n{\n"),
         ("empty.bvh", b""),
         ("empty.pkl", b""),
         ("empty.npz", b""),
     ] {
         let e = err(name, bytes);
         assert!(e.starts_with(name), "{e}");
+        if !name.contains(".pkl") && !name.contains(".npz") && !name.contains(".bvh") {
+            assert!(e.contains("extension"), "{e}");
+        }
     }
 }
 

@@ -189,6 +189,37 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
     }
 
     eprintln!("gRPC query ok");
+    // A filter no stored motion can match is refused, naming the filter
+    // and what the archive has; the same over gRPC.
+    for (filters, says, offers) in [
+        (json!({"genre": "XX"}), "genre=XX", "JS"),
+        (json!({"colour": "red"}), "'colour'", "genre"),
+    ] {
+        let key = filters.as_object().unwrap().keys().next().unwrap().clone();
+        let body = json!({"motion": {"id": 1}, "filters": filters});
+        let (status, err) =
+            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&body)))
+                .await
+                .unwrap();
+        assert_eq!(status, 400, "{err}");
+        assert_eq!(err["error"]["field"], format!("filters.{key}"));
+        let reason = err["error"]["reason"].as_str().unwrap();
+        assert!(reason.contains(says) && reason.contains(offers), "{reason}");
+    }
+    let bad = client
+        .query(pb::QueryRequest {
+            motion: Some(pb::MotionSource {
+                source: Some(pb::motion_source::Source::Id(1)),
+            }),
+            filters: [("genre".to_string(), "XX".to_string())]
+                .into_iter()
+                .collect(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(bad.code(), tonic::Code::InvalidArgument);
+    assert!(bad.message().contains("filters.genre"), "{}", bad.message());
     // Keyframes over both: the same keyframes and error.
     let body = json!({"motion": {"file": {"name": "a.pkl", "content_base64": base64::engine::general_purpose::STANDARD.encode(&bytes)}},
                       "count": 12, "select": "dp"});

@@ -497,6 +497,22 @@ impl Store {
             .transpose()
     }
 
+    /// Every label kind in the store with its values.
+    pub async fn label_values(
+        &self,
+    ) -> Result<std::collections::BTreeMap<String, std::collections::BTreeSet<String>>> {
+        let rows: Vec<(String, String)> =
+            sqlx::query_as("SELECT DISTINCT kind, value FROM motion_labels")
+                .fetch_all(&self.pool)
+                .await
+                .map_err(|e| self.db(e))?;
+        let mut out = std::collections::BTreeMap::<_, std::collections::BTreeSet<_>>::new();
+        for (k, v) in rows {
+            out.entry(k).or_default().insert(v);
+        }
+        Ok(out)
+    }
+
     /// One window's stored embedding of one kind.
     pub async fn embedding(&self, window_id: i64, kind: Embedding) -> Result<Option<Vec<f32>>> {
         let row: Option<Vec<u8>> =

@@ -40,32 +40,21 @@ impl Format {
         }
     }
 
-    /// By extension, then by the first bytes.
-    pub fn detect(path: &str, bytes: &[u8]) -> Option<Format> {
+    /// By the name's extension only: a file's content is never guessed
+    /// (a `.txt` that happens to start like a pickle is refused, not read
+    /// as one).
+    pub fn detect(path: &str, _bytes: &[u8]) -> Option<Format> {
         let lower = path.to_ascii_lowercase();
         if lower.ends_with(".pkl") || lower.ends_with(".pickle") {
-            return Some(Format::Aist);
-        }
-        if lower.ends_with(".npz") {
-            return Some(Format::Amass);
-        }
-        if lower.ends_with(".bvh") {
-            return Some(Format::Bvh);
-        }
-        if lower.ends_with(".json") {
-            return Some(Format::Json);
-        }
-        match bytes {
-            [0x80, ..] => Some(Format::Aist),
-            [b'P', b'K', ..] => Some(Format::Amass),
-            [b'{', ..] => Some(Format::Json),
-            _ if String::from_utf8_lossy(&bytes[..bytes.len().min(64)])
-                .trim_start()
-                .starts_with("HIERARCHY") =>
-            {
-                Some(Format::Bvh)
-            }
-            _ => None,
+            Some(Format::Aist)
+        } else if lower.ends_with(".npz") {
+            Some(Format::Amass)
+        } else if lower.ends_with(".bvh") {
+            Some(Format::Bvh)
+        } else if lower.ends_with(".json") {
+            Some(Format::Json)
+        } else {
+            None
         }
     }
 }
@@ -88,7 +77,7 @@ pub fn read_bytes(file: &str, bytes: &[u8], opts: &ReadOptions) -> Result<Loaded
     let format = Format::detect(file, bytes).ok_or_else(|| MotionError::Unsupported {
         file: file.to_string(),
         reason:
-            "not a known motion format (expected .pkl AIST++, .npz AMASS, .bvh or choreo .json)"
+            "the name's extension gives the format, and this one is not known (expected .pkl AIST++, .npz AMASS, .bvh or choreo .json)"
                 .into(),
     })?;
     match format {
