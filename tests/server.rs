@@ -229,6 +229,15 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
             .unwrap();
     assert_eq!(status, 200, "{rest}");
     eprintln!("REST keyframes ok");
+    // Music and a tempo together conflict: refused, naming bpm.
+    let both = json!({"motion": {"id": 1}, "count": 12, "bpm": 120.0,
+                      "music": {"name": "beat.wav", "content_base64": "UklGRg=="}});
+    let (status, err) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/keyframes", Some(&both)))
+            .await
+            .unwrap();
+    assert_eq!(status, 400, "{err}");
+    assert_eq!(err["error"]["field"], "bpm", "{err}");
     let k = client
         .keyframes(pb::KeyframesRequest {
             motion: Some(source("a.pkl", bytes.clone())),

@@ -532,6 +532,12 @@ pub async fn keyframes(
             ))
         }
     };
+    if p.music.is_some() && p.bpm != 0.0 {
+        return Err(ApiError::invalid(
+            "bpm",
+            "give music or bpm, not both (the music's own beats set the grid)",
+        ));
+    }
     let (count, bpm, music) = (p.count, p.bpm, p.music);
     state
         .heavy("keyframes", move || {
