@@ -443,3 +443,33 @@ async fn request_ids_are_echoed_over_both_transports() {
     );
     running.shutdown().await.unwrap();
 }
+
+/// A body over `--max-body-mb` is 413 with the error body (code
+/// resource_exhausted), not a 400.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn oversized_body_is_413() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = config(dir.path(), &[]);
+    cfg.max_body_mb = 1;
+    let running = start(&cfg).await.unwrap();
+    let h = running.http;
+    let (status, _, text) = tokio::task::spawn_blocking(move || {
+        let big = format!(
+            r#"{{"motion": {{"file": {{"name": "x.bvh", "content_base64": "{}"}}}}}}"#,
+            "A".repeat(1_500_000)
+        );
+        raw(
+            h,
+            &format!(
+                "POST /v1/query HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{big}",
+                big.len()
+            ),
+        )
+    })
+    .await
+    .unwrap();
+    assert_eq!(status, 413, "{text}");
+    let v: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(v["error"]["code"], "resource_exhausted", "{v}");
+    running.shutdown().await.unwrap();
+}

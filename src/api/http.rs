@@ -118,7 +118,13 @@ async fn method_json(req: axum::extract::Request, next: axum::middleware::Next) 
 }
 
 fn body<T>(b: Result<Json<T>, JsonRejection>) -> Result<T, ApiError> {
-    b.map(|Json(x)| x).map_err(|r| decode_error(&r.body_text()))
+    b.map(|Json(x)| x).map_err(|r| {
+        if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::TooLarge("the request body is over the server's limit (--max-body-mb)".into())
+        } else {
+            decode_error(&r.body_text())
+        }
+    })
 }
 
 /// A JSON body serde could not read, as an error naming the field: a

@@ -49,6 +49,9 @@ pub enum ApiError {
     /// Every worker permit is taken: try again later.
     #[error("busy: {0}")]
     Busy(String),
+    /// The request is larger than the server takes (`--max-body-mb`).
+    #[error("too large: {0}")]
+    TooLarge(String),
     /// The capability is not loaded (no model).
     #[error("unavailable: {0}")]
     Unavailable(String),
@@ -75,6 +78,7 @@ impl ApiError {
             ApiError::Invalid { .. } => 400,
             ApiError::NotFound(_) | ApiError::Missing { .. } => 404,
             ApiError::Busy(_) => 429,
+            ApiError::TooLarge(_) => 413,
             ApiError::Unavailable(_) => 503,
             ApiError::Unauthenticated(_) => 401,
             ApiError::PermissionDenied(_) => 403,
@@ -86,7 +90,7 @@ impl ApiError {
         match self {
             ApiError::Invalid { .. } => tonic::Code::InvalidArgument,
             ApiError::NotFound(_) | ApiError::Missing { .. } => tonic::Code::NotFound,
-            ApiError::Busy(_) => tonic::Code::ResourceExhausted,
+            ApiError::Busy(_) | ApiError::TooLarge(_) => tonic::Code::ResourceExhausted,
             ApiError::Unavailable(_) => tonic::Code::Unavailable,
             ApiError::Unauthenticated(_) => tonic::Code::Unauthenticated,
             ApiError::PermissionDenied(_) => tonic::Code::PermissionDenied,
@@ -97,7 +101,7 @@ impl ApiError {
         match self {
             ApiError::Invalid { .. } => "invalid_argument",
             ApiError::NotFound(_) | ApiError::Missing { .. } => "not_found",
-            ApiError::Busy(_) => "resource_exhausted",
+            ApiError::Busy(_) | ApiError::TooLarge(_) => "resource_exhausted",
             ApiError::Unavailable(_) => "unavailable",
             ApiError::Unauthenticated(_) => "unauthenticated",
             ApiError::PermissionDenied(_) => "permission_denied",
