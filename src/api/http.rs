@@ -68,13 +68,7 @@ impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let status =
             StatusCode::from_u16(self.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
-        let body = match &self {
-            ApiError::Invalid { field, reason } | ApiError::Missing { field, reason } => {
-                json!({"error": {"code": self.kind(), "field": field, "reason": reason}})
-            }
-            other => json!({"error": {"code": other.kind(), "reason": other.to_string()}}),
-        };
-        let mut resp = (status, Json(body)).into_response();
+        let mut resp = (status, Json(self.body())).into_response();
         if status == StatusCode::TOO_MANY_REQUESTS {
             // Permits free within a request's time; one second is a fair
             // first back-off.

@@ -97,6 +97,18 @@ impl ApiError {
             ApiError::Internal(_) => tonic::Code::Internal,
         }
     }
+    /// The error body both REST and the WebSockets send:
+    /// `{"error": {"code", "field"?, "reason"}}`.
+    pub fn body(&self) -> serde_json::Value {
+        match self {
+            ApiError::Invalid { field, reason } | ApiError::Missing { field, reason } => {
+                serde_json::json!({"error": {"code": self.kind(), "field": field, "reason": reason}})
+            }
+            other => {
+                serde_json::json!({"error": {"code": other.kind(), "reason": other.to_string()}})
+            }
+        }
+    }
     pub fn kind(&self) -> &'static str {
         match self {
             ApiError::Invalid { .. } => "invalid_argument",

@@ -46,16 +46,6 @@ pub async fn duet(State(s): State<Arc<AppState>>, ws: WebSocketUpgrade) -> Respo
         .on_upgrade(move |socket| duet_socket(s, socket))
 }
 
-/// The error body of the REST API.
-pub fn error_json(e: &ApiError) -> Value {
-    match e {
-        ApiError::Invalid { field, reason } | ApiError::Missing { field, reason } => {
-            json!({"error": {"code": e.kind(), "field": field, "reason": reason}})
-        }
-        other => json!({"error": {"code": other.kind(), "reason": other.to_string()}}),
-    }
-}
-
 fn frame_json(f: &StreamFrame) -> Value {
     json!({"frame": {
         "index": f.index,
@@ -75,7 +65,7 @@ async fn send(socket: &mut WebSocket, v: &Value) -> bool {
 /// Say what went wrong, then close (policy violation for bad input,
 /// internal error otherwise).
 async fn fail(mut socket: WebSocket, e: ApiError) {
-    let _ = send(&mut socket, &error_json(&e)).await;
+    let _ = send(&mut socket, &e.body()).await;
     let code = match e {
         ApiError::Internal(_) => 1011,
         ApiError::Busy(_) | ApiError::Unavailable(_) => 1013,

@@ -187,10 +187,6 @@ impl Searcher {
         self.params
     }
 
-    pub fn store(&self) -> &Store {
-        &self.store
-    }
-
     pub fn window_count(&self) -> usize {
         self.catalog().windows.len()
     }

@@ -448,18 +448,6 @@ impl Store {
             .collect()
     }
 
-    /// One motion's canonical channels (`[frames][72]` at 60 fps), as
-    /// ingest stored them; `None` for an unknown id.
-    pub async fn channels(&self, motion_id: i64) -> Result<Option<Vec<[f32; CHANNELS]>>> {
-        let row: Option<Vec<u8>> =
-            sqlx::query_scalar("SELECT data FROM motion_channels WHERE motion_id = ?")
-                .bind(motion_id)
-                .fetch_optional(&self.pool)
-                .await
-                .map_err(|e| self.db(e))?;
-        row.map(|b| self.decode_channels(motion_id, &b)).transpose()
-    }
-
     fn decode_channels(&self, motion_id: i64, b: &[u8]) -> Result<Vec<[f32; CHANNELS]>> {
         let f = blob_to_f32s(b)
             .filter(|f| f.len() % CHANNELS == 0)
