@@ -378,46 +378,6 @@ pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, Ap
     if p.k > 1000 {
         return Err(ApiError::invalid("k", format!("{}; at most 1000", p.k)));
     }
-    // A filter that can match nothing is a mistake, not an empty answer:
-    // name the kinds or values the archive has.
-    if !p.filters.is_empty() {
-        let known = state.store.label_values().await.map_err(internal)?;
-        let list = |it: &mut dyn Iterator<Item = &String>| {
-            let all: Vec<&String> = it.collect();
-            let shown: Vec<&str> = all.iter().take(20).map(|s| s.as_str()).collect();
-            let more = all.len().saturating_sub(20);
-            format!(
-                "{}{}",
-                shown.join(", "),
-                if more > 0 {
-                    format!(" and {more} more")
-                } else {
-                    String::new()
-                }
-            )
-        };
-        for (k, v) in &p.filters {
-            let field = format!("filters.{k}");
-            let Some(values) = known.get(k) else {
-                return Err(ApiError::invalid(
-                    field,
-                    format!(
-                        "no stored motion has a '{k}' label (kinds: {})",
-                        list(&mut known.keys())
-                    ),
-                ));
-            };
-            if !values.contains(v) {
-                return Err(ApiError::invalid(
-                    field,
-                    format!(
-                        "no stored motion has {k}={v} (values: {})",
-                        list(&mut values.iter())
-                    ),
-                ));
-            }
-        }
-    }
     let req = QueryRequest {
         source,
         start_s: p.start_s,

@@ -1,0 +1,231 @@
+//! The searcher's writes: ingest and delete reach the live indexes before
+//! they answer; [`Searcher::maintain`] does the slow part afterwards.
+
+use super::{Searcher, COMPACT_SHARE};
+use crate::features::Embedding;
+use crate::index::hnsw::HnswIndex;
+use crate::index::AnnIndex;
+use crate::motion::{Labels, MotionError};
+use crate::service::ingest::{self, content_hash, IngestOptions, Stored};
+use crate::service::query::QueryError;
+use crate::store::WindowRef;
+use serde::Serialize;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+/// What [`Searcher::ingest`] did, with the labels merged into an already
+/// stored motion.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct IngestOutcome {
+    #[serde(flatten)]
+    pub stored: Stored,
+    /// For an already-stored file sent with labels: the labels as stored now.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub merged_labels: Option<Labels>,
+}
+
+impl Searcher {
+    /// Store one file's bytes and put its windows into every built index
+    /// before answering. Idempotent by content hash; labels sent with a file
+    /// already stored are merged into its labels.
+    pub async fn ingest(
+        &self,
+        name: &str,
+        bytes: Vec<u8>,
+        opts: &IngestOptions,
+    ) -> Result<Result<IngestOutcome, MotionError>, QueryError> {
+        let hash = content_hash(&bytes);
+        let _w = self.writes.lock().await;
+        if let Some(id) = self.store.motion_by_hash(&hash).await? {
+            let mut merged_labels = None;
+            if !opts.extra_labels.is_empty() {
+                merged_labels = self.store.merge_labels(id, &opts.extra_labels).await?;
+                if let (Some(l), Some(row)) = (
+                    &merged_labels,
+                    self.catalog
+                        .write()
+                        .expect("catalog lock")
+                        .motions
+                        .get_mut(&id),
+                ) {
+                    row.labels = l.clone();
+                }
+            }
+            return Ok(Ok(IngestOutcome {
+                stored: Stored::Existing { motion_id: id },
+                merged_labels,
+            }));
+        }
+        let pca = self.catalog().pca.clone();
+        let (opts2, name2) = (opts.clone(), name.to_string());
+        let prepared = tokio::task::spawn_blocking(move || {
+            ingest::prepare_with(&name2, bytes, hash, &opts2, pca.as_deref())
+        })
+        .await
+        .map_err(|e| QueryError::Index(name.into(), format!("worker failed: {e}")))?;
+        let m = match prepared {
+            Ok(m) => m,
+            Err(e) => return Ok(Err(e)),
+        };
+        let (motion_id, window_ids) = self.store.insert_motion(&m).await?;
+        let row = self
+            .store
+            .motion(motion_id)
+            .await?
+            .ok_or(QueryError::NotFound(motion_id))?;
+        let refs: Vec<(i64, WindowRef)> = window_ids
+            .iter()
+            .zip(&m.windows)
+            .map(|(id, w)| {
+                (
+                    *id,
+                    WindowRef {
+                        motion_id,
+                        start_frame: w.start_frame as i64,
+                    },
+                )
+            })
+            .collect();
+        // Into the indexes first, then the catalog: a query that sees the
+        // new windows also finds them in the index.
+        let built = self.built();
+        let windows = m.windows;
+        let ids = window_ids.clone();
+        tokio::task::spawn_blocking(move || {
+            for ((e, _, _), entry) in built {
+                let items: Vec<(usize, Vec<f32>)> = ids
+                    .iter()
+                    .zip(&windows)
+                    .filter_map(|(id, w)| {
+                        let v = w.embeddings.iter().find(|(k, _)| *k == e).map(|(_, v)| v)?;
+                        Some((*id as usize, v.clone()))
+                    })
+                    .collect();
+                for (id, v) in &items {
+                    entry.ix.add(*id, v);
+                }
+                entry.dirty.store(true, Ordering::Release);
+            }
+        })
+        .await
+        .map_err(|e| QueryError::Index(name.into(), format!("worker failed: {e}")))?;
+        self.catalog
+            .write()
+            .expect("catalog lock")
+            .add_motion(row, &refs);
+        self.wake.notify_one();
+        Ok(Ok(IngestOutcome {
+            stored: Stored::New {
+                motion_id,
+                windows: window_ids.len(),
+            },
+            merged_labels: None,
+        }))
+    }
+
+    /// Remove a stored motion; its windows vanish from the next query.
+    /// `false` for an unknown id.
+    pub async fn delete(&self, id: i64) -> Result<bool, QueryError> {
+        let _w = self.writes.lock().await;
+        if !self.store.delete_motion(id).await? {
+            return Ok(false);
+        }
+        let gone = {
+            let mut c = self.catalog.write().expect("catalog lock");
+            c.motions.remove(&id);
+            let ids = c.by_motion.remove(&id).unwrap_or_default();
+            for w in &ids {
+                c.windows.remove(w);
+            }
+            ids.len()
+        };
+        for (_, entry) in self.built() {
+            entry.dead.fetch_add(gone, Ordering::AcqRel);
+            entry.dirty.store(true, Ordering::Release);
+        }
+        self.wake.notify_one();
+        Ok(true)
+    }
+
+    /// The slow work writes leave behind, one job at a time while queries
+    /// go on: refit PCA when [`ingest::pca_due`] (its indexes rebuilt on
+    /// the new basis, then swapped in), rebuild indexes past
+    /// [`COMPACT_SHARE`] deleted points, and save every changed HNSW dump
+    /// (the rest get the store's generation in their meta).
+    pub async fn maintain(&self) -> Result<(), QueryError> {
+        let _w = self.writes.lock().await;
+        if ingest::pca_due(&self.store).await? {
+            let fitted = ingest::refit_pca(&self.store).await?;
+            self.catalog.write().expect("catalog lock").pca = fitted.map(|(p, _)| Arc::new(p));
+            for (key, _) in self
+                .built()
+                .into_iter()
+                .filter(|(k, _)| k.0 == Embedding::Pca)
+            {
+                let fresh = Arc::new(self.build(key, false).await?);
+                self.indexes.lock().expect("index map").insert(key, fresh);
+            }
+        }
+        for (key, entry) in self.built() {
+            let dead = entry.dead.load(Ordering::Acquire);
+            if dead > 0 && dead as f64 > COMPACT_SHARE * entry.ix.len() as f64 {
+                let fresh = Arc::new(self.build(key, false).await?);
+                self.indexes.lock().expect("index map").insert(key, fresh);
+            }
+        }
+        let generation = self.store.generation().await?;
+        for ((e, m, exact), entry) in self.built() {
+            if exact {
+                continue;
+            }
+            let base = self.index_base(e, m);
+            let saved = if entry.dirty.swap(false, Ordering::AcqRel) {
+                let ix = entry.ix.clone();
+                tokio::task::spawn_blocking(move || save_any(&*ix, &base, generation))
+                    .await
+                    .map_err(|err| QueryError::Index(e.name().into(), err.to_string()))?
+            } else {
+                HnswIndex::touch(&base, generation)
+            };
+            if let Err(err) = saved {
+                tracing::warn!("index {}-{}: not saved ({err})", e.name(), m.name());
+            }
+        }
+        Ok(())
+    }
+
+    /// Run [`Searcher::maintain`] in the background after writes (a quiet
+    /// spell of `debounce` first, so a burst of writes costs one job). The
+    /// task ends when the searcher is dropped.
+    pub fn spawn_maintenance(self: &Arc<Self>, debounce: std::time::Duration) {
+        let wake = self.wake.clone();
+        let me = Arc::downgrade(self);
+        tokio::spawn(async move {
+            loop {
+                let woke =
+                    tokio::time::timeout(std::time::Duration::from_secs(30), wake.notified())
+                        .await
+                        .is_ok();
+                if me.strong_count() == 0 {
+                    break;
+                }
+                if !woke {
+                    continue;
+                }
+                tokio::time::sleep(debounce).await;
+                let Some(s) = me.upgrade() else { break };
+                if let Err(err) = s.maintain().await {
+                    tracing::error!("index maintenance failed: {err}");
+                }
+            }
+        });
+    }
+}
+
+/// Save an index when it is an HNSW one.
+fn save_any(ix: &dyn AnnIndex, base: &std::path::Path, generation: i64) -> anyhow::Result<()> {
+    match ix.as_hnsw() {
+        Some(h) => h.save(base, generation).map(|_| ()),
+        None => Ok(()),
+    }
+}
