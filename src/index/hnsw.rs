@@ -472,6 +472,9 @@ impl AnnIndex for HnswIndex {
     fn add(&self, id: usize, v: &[f32]) {
         self.add_batch(&[(id, v.to_vec())]);
     }
+    fn add_batch(&self, items: &[(usize, Vec<f32>)]) {
+        HnswIndex::add_batch(self, items)
+    }
     fn as_hnsw(&self) -> Option<&HnswIndex> {
         Some(self)
     }

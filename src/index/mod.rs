@@ -97,6 +97,12 @@ pub trait AnnIndex: Send + Sync {
     /// Insert a raw (unprepared) vector. Takes `&self`: a live index takes
     /// inserts while it answers queries.
     fn add(&self, id: usize, v: &[f32]);
+    /// Insert many raw vectors (an index may do it faster than one by one).
+    fn add_batch(&self, items: &[(usize, Vec<f32>)]) {
+        for (id, v) in items {
+            self.add(*id, v);
+        }
+    }
     /// The HNSW index behind this one, if it is one (to save it).
     fn as_hnsw(&self) -> Option<&hnsw::HnswIndex> {
         None

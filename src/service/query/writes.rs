@@ -86,8 +86,15 @@ impl Searcher {
                 )
             })
             .collect();
-        // Into the indexes first, then the catalog: a query that sees the
-        // new windows also finds them in the index.
+        // The catalog first, then the indexes: hits are read through the
+        // catalog, so a point already in an index but not yet in the
+        // catalog would be dropped from a concurrent query's top k, while
+        // a catalog entry whose point is not indexed yet is merely not
+        // found for a moment.
+        self.catalog
+            .write()
+            .expect("catalog lock")
+            .add_motion(row, &refs);
         let built = self.built();
         let windows = m.windows;
         let ids = window_ids.clone();
@@ -101,18 +108,12 @@ impl Searcher {
                         Some((*id as usize, v.clone()))
                     })
                     .collect();
-                for (id, v) in &items {
-                    entry.ix.add(*id, v);
-                }
+                entry.ix.add_batch(&items);
                 entry.dirty.store(true, Ordering::Release);
             }
         })
         .await
         .map_err(|e| QueryError::Index(name.into(), format!("worker failed: {e}")))?;
-        self.catalog
-            .write()
-            .expect("catalog lock")
-            .add_motion(row, &refs);
         self.wake.notify_one();
         Ok(Ok(IngestOutcome {
             stored: Stored::New {
