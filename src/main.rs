@@ -2,6 +2,44 @@
 
 mod cli;
 
+/// The system allocator with a counter of allocations, for the
+/// allocations-per-token figure of `choreo bench model` (one relaxed atomic
+/// add per allocation).
+mod choreo_alloc {
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::sync::atomic::{AtomicU64, Ordering};
+
+    static ALLOCS: AtomicU64 = AtomicU64::new(0);
+
+    pub struct Counting;
+
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+            ALLOCS.fetch_add(1, Ordering::Relaxed);
+            System.alloc(l)
+        }
+        unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+            System.dealloc(p, l)
+        }
+        unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+            ALLOCS.fetch_add(1, Ordering::Relaxed);
+            System.alloc_zeroed(l)
+        }
+        unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+            ALLOCS.fetch_add(1, Ordering::Relaxed);
+            System.realloc(p, l, n)
+        }
+    }
+
+    /// Allocations so far (all threads).
+    pub fn count() -> u64 {
+        ALLOCS.load(Ordering::Relaxed)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: choreo_alloc::Counting = choreo_alloc::Counting;
+
 use anyhow::{bail, Context, Result};
 use choreo::features::Embedding;
 use choreo::index::hnsw::HnswParams;
@@ -319,6 +357,15 @@ enum BenchCmd {
         /// scripts/bench_onnxruntime.py).
         #[arg(long)]
         dump: Option<PathBuf>,
+        /// The runtime to measure: tract or ort (a build with the
+        /// `onnxruntime` feature, and --ort-lib or ORT_DYLIB_PATH).
+        #[arg(long, default_value = "tract")]
+        runtime: choreo::lm::engine::Runtime,
+        #[arg(long)]
+        ort_lib: Option<PathBuf>,
+        /// Print one JSON object on one line.
+        #[arg(long)]
+        json: bool,
     },
     /// Embedding throughput (windows/s) on the real windows of a corpus.
     Embed {
@@ -706,8 +753,14 @@ fn run(cli: Cli) -> Result<()> {
                     repeats,
                     frames,
                     dump,
+                    runtime,
+                    ort_lib,
+                    json,
                 },
-        } => bench_model(&model, repeats, frames, dump.as_deref()),
+        } => {
+            let engine = choreo::lm::engine::Engine::new(runtime, ort_lib.as_deref())?;
+            bench_model(&model, &engine, repeats, frames, dump.as_deref(), json)
+        }
         Cmd::Bench {
             cmd:
                 BenchCmd::Keyframes {
@@ -1532,11 +1585,18 @@ fn bench_keyframes(
     Ok(())
 }
 
-fn bench_model(dir: &Path, repeats: usize, frames: usize, dump: Option<&Path>) -> Result<()> {
+fn bench_model(
+    dir: &Path,
+    engine: &choreo::lm::engine::Engine,
+    repeats: usize,
+    frames: usize,
+    dump: Option<&Path>,
+    json: bool,
+) -> Result<()> {
     use choreo::lm::model::MotionModel;
     use choreo::lm::{Kv, Sampling};
     let t0 = Instant::now();
-    let model = MotionModel::load(dir)?;
+    let model = MotionModel::load_with(dir, engine)?;
     let load = t0.elapsed().as_secs_f64();
     let v = model.vocabulary().clone();
     // Whole-window forward (the flat model's one-step window).
@@ -1564,6 +1624,33 @@ fn bench_model(dir: &Path, repeats: usize, frames: usize, dump: Option<&Path>) -
             "forward_tokens_per_s": toks.len() as f64 / per,
         });
     }
+    // The frame model: one global step (past 150 frames) and one local
+    // (slot) step, each timed alone; the window forward is the global pass
+    // over a whole context, as classification runs it.
+    let mut steps = serde_json::Value::Null;
+    if let MotionModel::Frame(s) = &model {
+        let n = (repeats * 50).max(200);
+        let (mut g, mut l) = s.time_steps(150, n)?;
+        let vals = vec![(v.bins / 2) as u32; s.config().slots * s.config().max_frames];
+        s.classify(&vals)?;
+        let t1 = Instant::now();
+        let reps = repeats.clamp(1, 5);
+        for _ in 0..reps {
+            s.classify(&vals)?;
+        }
+        let per = t1.elapsed().as_secs_f64() / reps as f64;
+        g.sort_by(f64::total_cmp);
+        l.sort_by(f64::total_cmp);
+        steps = serde_json::json!({
+            "global_step_ms_p50": g[g.len() / 2],
+            "local_step_ms_p50": l[l.len() / 2],
+            "window_frames": s.config().max_frames,
+            "window_forward_ms": per * 1e3,
+        });
+        if window.is_null() {
+            window = serde_json::json!({"window_frames": s.config().max_frames, "window_forward_ms": per * 1e3});
+        }
+    }
     // Streaming: per-frame latency over `frames` frames (window slides).
     let mut g = model.generator(
         &Default::default(),
@@ -1573,34 +1660,52 @@ fn bench_model(dir: &Path, repeats: usize, frames: usize, dump: Option<&Path>) -
             top_k: 0,
             top_p: 1.0,
             seed: 1,
+            guidance: 1.0,
         },
     )?;
     let mut lat = Vec::with_capacity(frames);
+    let free = vec![None; v.frame_len()];
     let t2 = Instant::now();
+    let allocs0 = choreo_alloc::count();
     for _ in 0..frames {
         let t = Instant::now();
-        g.next_frame(&vec![None; v.frame_len()])?;
+        g.next_frame(&free)?;
         lat.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let total = t2.elapsed().as_secs_f64();
+    let allocs = (choreo_alloc::count() - allocs0) as f64 / frames as f64;
     lat.sort_by(f64::total_cmp);
     let q = |p: f64| lat[((lat.len() as f64 - 1.0) * p).round() as usize];
-    println!(
-        "{}",
-        serde_json::to_string_pretty(&serde_json::json!({
-            "model": dir.display().to_string(),
-            "kind": model.kind(),
-            "runtime": "tract",
-            "context_frames": model.context_frames(),
-            "load_s": load,
-            "window": window,
-            "stream_frames": frames,
-            "frame_ms_p50": q(0.5),
-            "frame_ms_p95": q(0.95),
-            "frame_ms_p99": q(0.99),
-            "frame_ms_max": q(1.0),
-            "real_time_factor": frames as f64 / v.fps / total,
-        }))?
-    );
+    // The decode step: one sequential network step. For the frame model
+    // that is a local (slot) step; the flat model's figure is a frame over
+    // its 43 tokens.
+    let decode = match (&model, steps.get("local_step_ms_p50")) {
+        (MotionModel::Frame(_), Some(x)) => x.as_f64().unwrap_or(f64::NAN),
+        _ => q(0.5) / v.frame_len() as f64,
+    };
+    let out = serde_json::json!({
+        "model": dir.display().to_string(),
+        "kind": model.kind(),
+        "runtime": engine.runtime().name(),
+        "context_frames": model.context_frames(),
+        "load_s": load,
+        "window": window,
+        "window_forward_ms": window.get("window_forward_ms"),
+        "steps": steps,
+        "decode_step_ms_p50": decode,
+        "stream_frames": frames,
+        "frame_ms_p50": q(0.5),
+        "frame_ms_p95": q(0.95),
+        "frame_ms_p99": q(0.99),
+        "frame_ms_max": q(1.0),
+        "real_time_factor": frames as f64 / v.fps / total,
+        "allocations_per_frame": allocs,
+        "allocations_per_token": allocs / v.frame_len() as f64,
+    });
+    if json {
+        println!("{}", serde_json::to_string(&out)?);
+    } else {
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    }
     Ok(())
 }

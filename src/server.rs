@@ -42,6 +42,15 @@ pub struct ServeConfig {
     /// classify answer 503; a broken model stops start-up.
     #[arg(long, env = "CHOREO_MODEL", default_value = "models/default")]
     pub model: PathBuf,
+    /// Which runtime runs the models: tract (built in) or ort (onnxruntime;
+    /// needs a build with the `onnxruntime` feature and the library from
+    /// the onnxruntime pip wheel, at --ort-lib or ORT_DYLIB_PATH).
+    #[arg(long, env = "CHOREO_RUNTIME", default_value = "tract")]
+    pub runtime: crate::lm::engine::Runtime,
+    /// The onnxruntime shared library for --runtime ort (default:
+    /// ORT_DYLIB_PATH).
+    #[arg(long)]
+    pub ort_lib: Option<PathBuf>,
     /// The learned in-betweener for `keyframes` with `inbetween: learned`
     /// (a folder written by `choreo-train inbetween`); missing = 503.
     #[arg(long, env = "CHOREO_INBETWEENER", default_value = "models/inbetween")]
@@ -182,9 +191,11 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         },
     )
     .await?;
+    let engine = crate::lm::engine::Engine::new(cfg.runtime, cfg.ort_lib.as_deref())?;
+    tracing::info!("model runtime: {}", cfg.runtime.name());
     let model = if cfg.model.exists() {
         let t0 = std::time::Instant::now();
-        let m = crate::lm::model::MotionModel::load(&cfg.model)
+        let m = crate::lm::model::MotionModel::load_with(&cfg.model, &engine)
             .with_context(|| format!("--model {}", cfg.model.display()))?;
         tracing::info!(
             "model {} ({}) loaded in {:.2} s; context {} frames; conditioned on: {}",
@@ -207,7 +218,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     }
     let inbetweener = if cfg.inbetweener.exists() {
         Some(Arc::new(
-            crate::lm::inbetween::Inbetweener::load(&cfg.inbetweener)
+            crate::lm::inbetween::Inbetweener::load_with(&cfg.inbetweener, &engine)
                 .with_context(|| format!("--inbetweener {}", cfg.inbetweener.display()))?,
         ))
     } else {

@@ -27,6 +27,8 @@ fn config(dir: &std::path::Path, cors: &[&str]) -> ServeConfig {
         cors_origins: cors.iter().map(|s| s.to_string()).collect(),
         log_format: Default::default(),
         hnsw_backend: choreo::index::hnsw::Backend::Flat,
+        runtime: choreo::lm::engine::Runtime::Tract,
+        ort_lib: None,
     }
 }
 

@@ -45,6 +45,7 @@ fn config(v: &Vocabulary) -> FrameConfig {
         cond_kinds: vec!["style".into()],
         classes: vec![("style".into(), vec!["happy".into(), "sad".into()])],
         ln_eps: 1e-5,
+        cond_every: true,
     }
 }
 
@@ -195,6 +196,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         top_k: 0,
         top_p: 0.95,
         seed: 9,
+        guidance: 1.0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;

@@ -121,6 +121,7 @@ fn frame_model_runtime_agrees_with_onnxruntime() {
         cond_kinds: vec!["style".into()],
         classes: vec![("style".into(), vec!["happy".into(), "sad".into()])],
         ln_eps: 1e-5,
+        cond_every: true,
     };
     let net = FrameNet::new(cfg, &candle_core::Device::Cpu).unwrap();
     let dir = tempfile::tempdir().unwrap();

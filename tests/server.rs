@@ -119,6 +119,8 @@ fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
         cors_origins: vec![],
         log_format: Default::default(),
         hnsw_backend: choreo::index::hnsw::Backend::Flat,
+        runtime: choreo::lm::engine::Runtime::Tract,
+        ort_lib: None,
     }
 }
 
@@ -528,6 +530,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             top_k: 40,
             top_p: 0.95,
             seed: 7,
+            guidance: 0.0,
         }),
     };
     let one = client.generate(greq.clone()).await.unwrap().into_inner();

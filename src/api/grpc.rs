@@ -73,14 +73,21 @@ pub fn motion_pb(m: &Motion) -> pb::Motion {
 /// recommended setting, as over REST.
 fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     let s = s.unwrap_or_default();
+    let r = crate::lm::Sampling::recommended(s.seed);
+    let guidance = if s.guidance == 0.0 {
+        r.guidance
+    } else {
+        s.guidance
+    };
     if s.temperature == 0.0 && s.top_k == 0 && s.top_p == 0.0 {
-        return crate::lm::Sampling::recommended(s.seed);
+        return crate::lm::Sampling { guidance, ..r };
     }
     crate::lm::Sampling {
         temperature: s.temperature,
         top_k: s.top_k as usize,
         top_p: if s.top_p == 0.0 { 1.0 } else { s.top_p },
         seed: s.seed,
+        guidance,
     }
 }
 

@@ -405,15 +405,20 @@ pub struct SamplingJson {
     pub top_p: Option<f64>,
     #[serde(default)]
     pub seed: u64,
+    /// Classifier-free guidance toward the labels (1 = plain
+    /// conditioning); absent = the recommended value.
+    pub guidance: Option<f64>,
 }
 
 impl SamplingJson {
     pub fn to_sampling(&self) -> crate::lm::Sampling {
         let r = crate::lm::Sampling::recommended(self.seed);
+        let guidance = self.guidance.unwrap_or(r.guidance);
         match self.temperature {
             None => crate::lm::Sampling {
                 top_k: self.top_k.unwrap_or(r.top_k),
                 top_p: self.top_p.unwrap_or(r.top_p),
+                guidance,
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -421,6 +426,7 @@ impl SamplingJson {
                 top_k: self.top_k.unwrap_or(0),
                 top_p: self.top_p.unwrap_or(1.0),
                 seed: self.seed,
+                guidance,
             },
         }
     }

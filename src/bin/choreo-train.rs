@@ -132,6 +132,15 @@ struct FrameArgs {
     /// Continue the run saved in --out.
     #[arg(long)]
     resume: bool,
+    /// Start a new run from the weights of this frame-model checkpoint
+    /// folder (its vocabulary too); parameters it lacks keep their fresh
+    /// initialisation (e.g. `g_cond_all` when adding --cond-every).
+    #[arg(long, conflicts_with = "resume")]
+    init_from: Option<PathBuf>,
+    /// Feed the conditioning into every frame's global input, not only
+    /// position 0, and train with whole-conditioning dropout (guidance).
+    #[arg(long)]
+    cond_every: bool,
     /// Largest per-frame change (bins) the change head names.
     #[arg(long, default_value_t = 24)]
     radius: usize,
@@ -444,8 +453,9 @@ fn frame(a: FrameArgs) -> Result<()> {
             kinds.push(k.clone());
         }
     }
-    let known = if a.resume {
-        let (st, _, _): (tr::frame::FrameState, _, _) = tr::load_parts(&a.out, &tr::device())?;
+    let known = if a.resume || a.init_from.is_some() {
+        let from = a.init_from.as_ref().unwrap_or(&a.out);
+        let (st, _, _): (tr::frame::FrameState, _, _) = tr::load_parts(from, &tr::device())?;
         Some(st.vocabulary)
     } else {
         None
@@ -462,6 +472,7 @@ fn frame(a: FrameArgs) -> Result<()> {
     let run = tr::frame::FrameRun {
         out: a.out.clone(),
         resume: a.resume,
+        init_from: a.init_from.clone(),
         config: choreo::lm::frame::FrameConfig {
             bins: vocab.bins,
             slots: vocab.frame_len() - 1,
@@ -478,6 +489,7 @@ fn frame(a: FrameArgs) -> Result<()> {
             cond_kinds: known_kinds(&vocab, &a.cond),
             classes: class_values(&vocab, &a.classify)?,
             ln_eps: 1e-5,
+            cond_every: a.cond_every,
         },
         resume_steps: a.steps,
         settings: RunSettings {

@@ -7,14 +7,18 @@ use choreo::lm::Sampling;
 use choreo::service::eval_generate::{eval_generate, GenOptions};
 use std::path::{Path, PathBuf};
 
-/// `T:K:P` (temperature, top-k, top-p), or `greedy`.
+/// `T:K:P[:G]` (temperature, top-k, top-p, guidance), or `greedy`.
 pub fn parse_sampling(s: &str) -> Result<Sampling> {
     if s == "greedy" {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    let [t, k, p] = parts[..] else {
-        bail!("--sampling: '{s}' is not T:K:P (temperature:top_k:top_p) or greedy");
+    let (t, k, p, g) = match parts[..] {
+        [t, k, p] => (t, k, p, "1"),
+        [t, k, p, g] => (t, k, p, g),
+        _ => bail!(
+            "--sampling: '{s}' is not T:K:P[:G] (temperature:top_k:top_p[:guidance]) or greedy"
+        ),
     };
     let sm = Sampling {
         temperature: t
@@ -27,6 +31,9 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
             .parse()
             .with_context(|| format!("--sampling: top_p '{p}'"))?,
         seed: 0,
+        guidance: g
+            .parse()
+            .with_context(|| format!("--sampling: guidance '{g}'"))?,
     };
     sm.validate()
         .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;

@@ -46,6 +46,11 @@ pub struct FrameConfig {
     pub cond_kinds: Vec<String>,
     pub classes: Vec<(String, Vec<String>)>,
     pub ln_eps: f64,
+    /// The conditioning also enters every frame's global input (through
+    /// `g_cond_all`), not only position 0, so a label keeps steering a long
+    /// window; trained with whole-conditioning dropout for guidance.
+    #[serde(default)]
+    pub cond_every: bool,
 }
 
 impl FrameConfig {
@@ -165,6 +170,7 @@ mod tests {
             cond_kinds: vec![],
             classes: vec![],
             ln_eps: 1e-5,
+            cond_every: false,
         }
     }
 

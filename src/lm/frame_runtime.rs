@@ -1,8 +1,9 @@
-//! The frame model in tract: two step plans with static shapes (global and
+//! The frame model on the model runtime (`engine`: tract or ort): two step graphs with static shapes (global and
 //! local), fixed-capacity key/value caches written in place, and the
 //! generator that decodes one frame per call (one global step plus one
 //! local step per slot).
 
+use super::engine::{Cache, Engine, Graph, GraphSpec, GraphState, In, Outputs};
 use super::frame::{
     frame_changes, global_inputs, global_outputs, local_context, local_inputs, local_outputs,
     FrameConfig, FrameManifest,
@@ -14,126 +15,50 @@ use rand::rngs::StdRng;
 use rand::SeedableRng;
 use std::path::Path;
 use std::sync::Arc;
-use tract_onnx::prelude::*;
 
-type Plan = Arc<TypedRunnableModel>;
-
-fn rt(e: impl std::fmt::Display) -> LmError {
-    LmError::Runtime(e.to_string())
-}
-
-/// A plan output's floats, row-major.
-fn floats(t: &Tensor) -> Result<&[f32], LmError> {
-    t.try_as_plain_ram()
-        .map_err(rt)?
-        .as_slice::<f32>()
-        .map_err(rt)
-}
-
-/// A loaded frame model: the manifest and both plans, shared by requests.
+/// A loaded frame model: the manifest and both graphs, shared by requests.
 pub struct FrameSession {
     pub manifest: FrameManifest,
-    global: Plan,
-    local: Plan,
+    global: Arc<dyn Graph>,
+    local: Arc<dyn Graph>,
 }
 
-fn plan(bytes: &[u8], want_in: &[String], want_out: &[String]) -> TractResult<Plan> {
-    let model = tract_onnx::onnx().model_for_read(&mut std::io::Cursor::new(bytes))?;
-    let got_in: Vec<String> = model
-        .input_outlets()?
-        .iter()
-        .map(|o| model.node(o.node).name.clone())
-        .collect();
-    let got_out: Vec<String> = model
-        .output_outlets()?
-        .iter()
-        .map(|o| model.node(o.node).name.clone())
-        .collect();
-    if got_in != want_in || got_out.len() != want_out.len() {
-        anyhow::bail!(
-            "the graph's inputs {got_in:?} (and {} outputs) are not the {want_in:?} (and {} outputs) the manifest's config implies",
-            got_out.len(),
-            want_out.len()
-        );
-    }
-    model.into_optimized()?.into_runnable()
-}
-
-/// Key/value caches of fixed capacity, `[1, heads, cap, d_head]` per layer,
-/// and how many rows hold positions.
-struct Cache {
-    k: Vec<Arc<Tensor>>,
-    v: Vec<Arc<Tensor>>,
-    heads: usize,
-    cap: usize,
-    dh: usize,
-    len: usize,
-}
-
-impl Cache {
-    fn new(layers: usize, heads: usize, cap: usize, dh: usize) -> Cache {
-        let z = || Arc::new(Tensor::zero::<f32>(&[1, heads, cap, dh]).expect("cache tensor"));
-        Cache {
-            k: (0..layers).map(|_| z()).collect(),
-            v: (0..layers).map(|_| z()).collect(),
-            heads,
-            cap,
-            dh,
-            len: 0,
-        }
-    }
-
-    /// 0 over the filled rows and the new position, −1e9 elsewhere.
-    fn bias(&self) -> Tensor {
-        let mut b = vec![-1e9f32; self.cap + 1];
-        for x in b.iter_mut().take(self.len) {
-            *x = 0.0;
-        }
-        b[self.cap] = 0.0;
-        Tensor::from_shape(&[1, self.cap + 1], &b).expect("bias")
-    }
-
-    fn inputs(&self, into: &mut TVec<TValue>) {
-        for (k, v) in self.k.iter().zip(&self.v) {
-            into.push(TValue::from_const(k.clone()));
-            into.push(TValue::from_const(v.clone()));
-        }
-    }
-
-    /// Writes the new position's keys and values (`[1, heads, 1, dh]`
-    /// each, alternating k, v per layer) at row `len`.
-    fn push(&mut self, new: &[TValue]) -> Result<(), LmError> {
-        let (p, dh, cap) = (self.len, self.dh, self.cap);
-        for (l, pair) in new.chunks_exact(2).enumerate() {
-            for (dst, src) in [(&mut self.k[l], &pair[0]), (&mut self.v[l], &pair[1])] {
-                let src = floats(src)?;
-                let t = Arc::make_mut(dst);
-                let mut view = t.to_plain_array_view_mut::<f32>().map_err(rt)?;
-                let d = view
-                    .as_slice_mut()
-                    .ok_or_else(|| rt("cache tensor is not contiguous"))?;
-                for h in 0..self.heads {
-                    d[(h * cap + p) * dh..(h * cap + p + 1) * dh]
-                        .copy_from_slice(&src[h * dh..(h + 1) * dh]);
-                }
-            }
-        }
-        self.len += 1;
-        Ok(())
-    }
+/// A global or local run state with its output buffers.
+struct Step {
+    st: Box<dyn GraphState>,
+    out: Outputs,
 }
 
 impl FrameSession {
     /// Loads a frame model folder, checking the manifest against both
     /// graphs (hashes, input and output names).
     pub fn load(path: &Path) -> Result<FrameSession, LmError> {
+        FrameSession::load_with(path, &Engine::tract())
+    }
+
+    /// Loads it on `engine`'s runtime.
+    pub fn load_with(path: &Path, engine: &Engine) -> Result<FrameSession, LmError> {
         let (manifest, g, l) = FrameManifest::load(path)?;
         let c = &manifest.config;
         let name = |f: &str| path.join(f).display().to_string();
-        let global = plan(&g, &global_inputs(c), &global_outputs(c))
-            .map_err(|e| LmError::invalid(name(&manifest.global_onnx), "graph", e.to_string()))?;
-        let local = plan(&l, &local_inputs(c), &local_outputs(c))
-            .map_err(|e| LmError::invalid(name(&manifest.local_onnx), "graph", e.to_string()))?;
+        let global = engine.load(
+            &g,
+            &GraphSpec {
+                inputs: &global_inputs(c),
+                outputs: global_outputs(c).len(),
+                file: &name(&manifest.global_onnx),
+                f32_shapes: &[],
+            },
+        )?;
+        let local = engine.load(
+            &l,
+            &GraphSpec {
+                inputs: &local_inputs(c),
+                outputs: local_outputs(c).len(),
+                file: &name(&manifest.local_onnx),
+                f32_shapes: &[],
+            },
+        )?;
         Ok(FrameSession {
             manifest,
             global,
@@ -147,11 +72,14 @@ impl FrameSession {
 
     /// Fresh run states for the global and local plans (one pair per
     /// generator: their buffers are reused from step to step).
-    fn states(&self) -> Result<(TypedSimpleState, TypedSimpleState), LmError> {
-        Ok((
-            self.global.spawn().map_err(rt)?,
-            self.local.spawn().map_err(rt)?,
-        ))
+    fn states(&self) -> Result<(Step, Step), LmError> {
+        let step = |g: &Arc<dyn Graph>| -> Result<Step, LmError> {
+            Ok(Step {
+                st: g.spawn()?,
+                out: Outputs::default(),
+            })
+        };
+        Ok((step(&self.global)?, step(&self.local)?))
     }
 
     fn new_global_cache(&self) -> Cache {
@@ -178,7 +106,7 @@ impl FrameSession {
     /// value tokens after `p1`. Returns the state and the class logits.
     fn global_step(
         &self,
-        st: &mut TypedSimpleState,
+        st: &mut Step,
         cache: &mut Cache,
         cond: &[f32],
         frame: Option<(&[u32], Option<&[u32]>)>,
@@ -193,39 +121,28 @@ impl FrameSession {
                 0.0,
             ),
         };
-        let mut inputs: TVec<TValue> = TVec::new();
-        inputs.push(Tensor::from_shape(&[1, s], &val).map_err(rt)?.into_tvalue());
-        inputs.push(Tensor::from_shape(&[1, s], &chg).map_err(rt)?.into_tvalue());
-        inputs.push(
-            Tensor::from_shape(&[1, c.vocab_size], cond)
-                .map_err(rt)?
-                .into_tvalue(),
-        );
-        inputs.push(
-            Tensor::from_shape(&[1, 1], &[is_cond])
-                .map_err(rt)?
-                .into_tvalue(),
-        );
-        inputs.push(
-            Tensor::from_shape(&[1], &[cache.len as i64])
-                .map_err(rt)?
-                .into_tvalue(),
-        );
-        inputs.push(cache.bias().into_tvalue());
-        cache.inputs(&mut inputs);
-        let out = st.run(inputs).map_err(rt)?;
+        let bias = cache.bias();
+        let pos = [cache.len as i64];
+        let inputs = [
+            In::I64(&[1, s], &val),
+            In::I64(&[1, s], &chg),
+            In::F32(&[1, c.vocab_size], cond),
+            In::F32(&[1, 1], &[is_cond]),
+            In::I64(&[1], &pos),
+            In::F32(&[1, bias.len()], &bias),
+        ];
+        st.st.run(&inputs, Some(cache), &mut st.out)?;
         let nk = c.classes.len();
-        cache.push(&out[1 + nk..])?;
-        let flat = |t: &TValue| -> Result<Vec<f32>, LmError> { Ok(floats(t)?.to_vec()) };
-        let h = flat(&out[0])?;
-        let cls = out[1..1 + nk].iter().map(flat).collect::<Result<_, _>>()?;
+        cache.push(&st.out, 1 + nk)?;
+        let h = st.out.data(0).to_vec();
+        let cls = (1..1 + nk).map(|i| st.out.data(i).to_vec()).collect();
         Ok((h, cls))
     }
 
     /// One local step at slot `cache.len`: change and absolute logits.
     fn local_step(
         &self,
-        st: &mut TypedSimpleState,
+        st: &mut Step,
         cache: &mut Cache,
         ctx: &[f32],
         inp: u32,
@@ -233,24 +150,60 @@ impl FrameSession {
         prev: u32,
     ) -> Result<(Vec<f32>, Vec<f32>), LmError> {
         let c = self.config();
-        let mut inputs: TVec<TValue> = TVec::new();
-        inputs.push(
-            Tensor::from_shape(&[1, c.d_global], ctx)
-                .map_err(rt)?
-                .into_tvalue(),
-        );
-        for id in [inp, vel, prev, cache.len as u32] {
-            inputs.push(
-                Tensor::from_shape(&[1], &[id as i64])
-                    .map_err(rt)?
-                    .into_tvalue(),
-            );
+        let bias = cache.bias();
+        let ids = [inp as i64, vel as i64, prev as i64, cache.len as i64];
+        let inputs = [
+            In::F32(&[1, c.d_global], ctx),
+            In::I64(&[1], &ids[0..1]),
+            In::I64(&[1], &ids[1..2]),
+            In::I64(&[1], &ids[2..3]),
+            In::I64(&[1], &ids[3..4]),
+            In::F32(&[1, bias.len()], &bias),
+        ];
+        st.st.run(&inputs, Some(cache), &mut st.out)?;
+        cache.push(&st.out, 2)?;
+        Ok((st.out.data(0).to_vec(), st.out.data(1).to_vec()))
+    }
+
+    /// Step timings for `choreo bench model`: `repeats` global steps with
+    /// `past` frames cached and `repeats` local steps at slot `slots / 2`
+    /// (random-free inputs; the caches are fixed-capacity, so the cost does
+    /// not depend on how full they are). Returns the per-step times in ms,
+    /// (global, local).
+    pub fn time_steps(&self, past: usize, repeats: usize) -> Result<(Vec<f64>, Vec<f64>), LmError> {
+        let c = self.config().clone();
+        let cond = self.cond(&Labels::new())?;
+        let (mut gs, mut ls) = self.states()?;
+        let mut cache = self.new_global_cache();
+        self.global_step(&mut gs, &mut cache, &cond, None)?;
+        let frame = vec![(c.bins / 2) as u32; c.slots];
+        let past = past.min(c.max_frames - 1);
+        for _ in 0..past {
+            self.global_step(&mut gs, &mut cache, &cond, Some((&frame, Some(&frame))))?;
         }
-        inputs.push(cache.bias().into_tvalue());
-        cache.inputs(&mut inputs);
-        let out = st.run(inputs).map_err(rt)?;
-        cache.push(&out[2..])?;
-        Ok((floats(&out[0])?.to_vec(), floats(&out[1])?.to_vec()))
+        let mut g = Vec::with_capacity(repeats);
+        let mut h = Vec::new();
+        for _ in 0..repeats {
+            let t = std::time::Instant::now();
+            h = self
+                .global_step(&mut gs, &mut cache, &cond, Some((&frame, Some(&frame))))?
+                .0;
+            g.push(t.elapsed().as_secs_f64() * 1e3);
+            cache.len -= 1;
+        }
+        let mut l = Vec::with_capacity(repeats);
+        let mut local = self.new_local_cache();
+        let mid = c.slots / 2;
+        for _ in 0..mid {
+            self.local_step(&mut ls, &mut local, &h, c.radius as u32, c.radius as u32, 0)?;
+        }
+        for _ in 0..repeats {
+            let t = std::time::Instant::now();
+            self.local_step(&mut ls, &mut local, &h, c.radius as u32, c.radius as u32, 0)?;
+            l.push(t.elapsed().as_secs_f64() * 1e3);
+            local.len -= 1;
+        }
+        Ok((g, l))
     }
 
     /// The conditioning row for `labels` (`<bos>` and one token per label).
@@ -340,23 +293,31 @@ impl FrameSession {
     }
 }
 
-/// A running generation with the frame model: caches, the frames in the
-/// global window, the last two frames and the random state.
+/// One conditioning's side of the global transformer: its run state, its
+/// conditioning row, the window's cache, the next window's cache (the
+/// conditioning and the frames that will be kept at the next slide, filled
+/// one frame at a time while the current window decodes, so a slide costs
+/// no burst of work) and the latest global state.
+struct Track {
+    st: Step,
+    cond: Vec<f32>,
+    cache: Cache,
+    next: Option<Cache>,
+    h: Vec<f32>,
+}
+
+/// A running generation with the frame model: the global track (two under
+/// guidance: the request's labels and none), the frames in the global
+/// window, the last two frames and the random state.
 pub struct FrameGenerator {
     session: Arc<FrameSession>,
-    gstate: TypedSimpleState,
-    lstate: TypedSimpleState,
-    cond: Vec<f32>,
-    global: Cache,
-    /// The next window's cache (the conditioning and the frames that will
-    /// be kept at the next slide), filled one frame at a time while the
-    /// current window decodes, so a slide costs no burst of work.
-    next: Option<Cache>,
+    tracks: Vec<Track>,
+    lstate: Step,
     /// Frames in the global cache (after the conditioning row).
     window: Vec<Vec<u32>>,
     /// The frame before the window's first one, if any (its change codes).
     before: Option<Vec<u32>>,
-    /// The latest global state: the next frame is decoded from it.
+    /// The state the next frame is decoded from (guided when two tracks).
     h: Vec<f32>,
     rng: StdRng,
     sampling: Sampling,
@@ -392,15 +353,30 @@ impl FrameGenerator {
             ));
         }
         let keep = (c.max_frames / 2).max(1).min(frames.len());
-        let global = session.new_global_cache();
-        let (gstate, lstate) = session.states()?;
+        // Guidance needs labels to steer by and a model trained with the
+        // conditioning dropped; otherwise it is plain conditioning.
+        let guided = sampling.guidance != 1.0 && !labels.is_empty() && c.cond_every;
+        let mut conds = vec![cond];
+        if guided {
+            conds.push(session.cond(&Labels::new())?);
+        }
+        let (_, lstate) = session.states()?;
+        let tracks = conds
+            .into_iter()
+            .map(|cond| -> Result<Track, LmError> {
+                Ok(Track {
+                    st: session.states()?.0,
+                    cond,
+                    cache: session.new_global_cache(),
+                    next: None,
+                    h: Vec::new(),
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
         let mut g = FrameGenerator {
             session,
-            gstate,
+            tracks,
             lstate,
-            cond,
-            global,
-            next: None,
             window: frames[frames.len() - keep..].to_vec(),
             before: (frames.len() > keep).then(|| frames[frames.len() - keep - 1].clone()),
             h: Vec::new(),
@@ -412,28 +388,46 @@ impl FrameGenerator {
         Ok(g)
     }
 
+    /// The state the local decoder reads: the conditioned track's, or under
+    /// guidance `h_u + w (h_c − h_u)`.
+    fn mix(&mut self) {
+        let w = self.sampling.guidance as f32;
+        match self.tracks.as_slice() {
+            [c, u] => {
+                self.h.clear();
+                self.h
+                    .extend(c.h.iter().zip(&u.h).map(|(hc, hu)| hu + w * (hc - hu)));
+            }
+            [c] => self.h.clone_from(&c.h),
+            _ => {}
+        }
+    }
+
     /// Re-encodes the conditioning and the window's frames from an empty
-    /// cache.
+    /// cache, on every track.
     fn encode_window(&mut self) -> Result<(), LmError> {
         let s = self.session.clone();
-        self.next = None;
-        self.global = s.new_global_cache();
-        let (h, _) = s.global_step(&mut self.gstate, &mut self.global, &self.cond, None)?;
-        self.h = h;
-        for i in 0..self.window.len() {
-            let p1 = if i == 0 {
-                self.before.as_deref()
-            } else {
-                Some(self.window[i - 1].as_slice())
-            };
-            let (h, _) = s.global_step(
-                &mut self.gstate,
-                &mut self.global,
-                &self.cond,
-                Some((&self.window[i], p1)),
-            )?;
-            self.h = h;
+        for t in &mut self.tracks {
+            t.next = None;
+            t.cache = s.new_global_cache();
+            t.h = s.global_step(&mut t.st, &mut t.cache, &t.cond, None)?.0;
+            for i in 0..self.window.len() {
+                let p1 = if i == 0 {
+                    self.before.as_deref()
+                } else {
+                    Some(self.window[i - 1].as_slice())
+                };
+                t.h = s
+                    .global_step(
+                        &mut t.st,
+                        &mut t.cache,
+                        &t.cond,
+                        Some((&self.window[i], p1)),
+                    )?
+                    .0;
+            }
         }
+        self.mix();
         Ok(())
     }
 
@@ -492,34 +486,40 @@ impl FrameGenerator {
             let cut = self.window.len() - keep;
             self.before = Some(self.window[cut - 1].clone());
             self.window.drain(..cut);
-            match self.next.take() {
-                Some(n) if n.len == 1 + keep => self.global = n,
-                _ => self.encode_window()?,
+            let ready = self
+                .tracks
+                .iter()
+                .all(|t| t.next.as_ref().is_some_and(|n| n.len == 1 + keep));
+            if ready {
+                for t in &mut self.tracks {
+                    t.cache = t.next.take().expect("checked");
+                }
+            } else {
+                self.encode_window()?;
             }
         }
-        let (h, _) = session.global_step(
-            &mut self.gstate,
-            &mut self.global,
-            &self.cond,
-            Some((&frame, p1.as_deref())),
-        )?;
-        self.h = h;
         let i = self.window.len();
-        if i >= m - keep {
-            if i == m - keep {
-                let mut n = session.new_global_cache();
-                session.global_step(&mut self.gstate, &mut n, &self.cond, None)?;
-                self.next = Some(n);
-            }
-            if let Some(n) = self.next.as_mut() {
-                session.global_step(
-                    &mut self.gstate,
-                    n,
-                    &self.cond,
+        for t in &mut self.tracks {
+            t.h = session
+                .global_step(
+                    &mut t.st,
+                    &mut t.cache,
+                    &t.cond,
                     Some((&frame, p1.as_deref())),
-                )?;
+                )?
+                .0;
+            if i >= m - keep {
+                if i == m - keep {
+                    let mut n = session.new_global_cache();
+                    session.global_step(&mut t.st, &mut n, &t.cond, None)?;
+                    t.next = Some(n);
+                }
+                if let Some(n) = t.next.as_mut() {
+                    session.global_step(&mut t.st, n, &t.cond, Some((&frame, p1.as_deref())))?;
+                }
             }
         }
+        self.mix();
         self.window.push(frame.clone());
         frame.push(session.manifest.vocabulary.sep());
         self.produced += 1;

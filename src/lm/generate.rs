@@ -26,6 +26,11 @@ pub struct Sampling {
     pub top_k: usize,
     pub top_p: f64,
     pub seed: u64,
+    /// Classifier-free guidance on the frame model's global state:
+    /// `h_u + guidance (h_c − h_u)` between the labelled and the unlabelled
+    /// state (1 = plain conditioning; needs labels and a model trained with
+    /// the conditioning at every frame; costs a second global step a frame).
+    pub guidance: f64,
 }
 
 impl Default for Sampling {
@@ -35,6 +40,7 @@ impl Default for Sampling {
             top_k: 0,
             top_p: 1.0,
             seed: 0,
+            guidance: 1.0,
         }
     }
 }
@@ -50,6 +56,7 @@ pub const RECOMMENDED: Sampling = Sampling {
     top_k: 0,
     top_p: 0.95,
     seed: 0,
+    guidance: 1.0,
 };
 
 impl Sampling {
@@ -67,6 +74,13 @@ impl Sampling {
                 "request",
                 "sampling.temperature",
                 format!("{} (want 0 to 10; 0 = greedy)", self.temperature),
+            ));
+        }
+        if !(self.guidance.is_finite() && (0.0..=10.0).contains(&self.guidance)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.guidance",
+                format!("{} (want 0 to 10; 1 = plain conditioning)", self.guidance),
             ));
         }
         if !(self.top_p > 0.0 && self.top_p <= 1.0) {

@@ -17,6 +17,7 @@
 //! The trainer (`choreo-train inbetween`) fits and exports it; the server
 //! loads it with tract through [`Inbetweener`].
 
+use super::engine::{Dim, Engine, Graph, GraphSpec, In, Outputs};
 use super::manifest::{read_manifest, read_onnx_checked, DataInfo};
 use super::LmError;
 use crate::motion::rotation::{axis_angle_to_mat, mat_to_6d, mat_to_axis_angle, sixd_to_mat};
@@ -25,7 +26,6 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
-use tract_onnx::prelude::*;
 
 /// Joints of the pose (SMPL-24).
 pub const JOINTS: usize = 24;
@@ -244,14 +244,12 @@ pub fn apply_residuals(
     base.with_data(trans, rots)
 }
 
-type Plan = Arc<TypedRunnableModel>;
-
-/// An exported in-betweener loaded in tract.
+/// An exported in-betweener on the model runtime (tract or ort).
 pub struct Inbetweener {
     pub manifest: InbetweenManifest,
     /// The ONNX file it was loaded from.
     pub onnx_path: std::path::PathBuf,
-    plan: Plan,
+    graph: Arc<dyn Graph>,
 }
 
 impl std::fmt::Debug for Inbetweener {
@@ -266,6 +264,11 @@ impl Inbetweener {
     /// Loads a model folder (or its manifest), checking the ONNX file's
     /// hash and that the graph takes `x [B, window, in_dim]`.
     pub fn load(path: &Path) -> Result<Inbetweener, LmError> {
+        Inbetweener::load_with(path, &Engine::tract())
+    }
+
+    /// Loads it on `engine`'s runtime.
+    pub fn load_with(path: &Path, engine: &Engine) -> Result<Inbetweener, LmError> {
         let (file, name, m): (_, _, InbetweenManifest) = read_manifest(path)?;
         if m.format != FORMAT || m.kind != KIND {
             return Err(LmError::invalid(
@@ -280,22 +283,23 @@ impl Inbetweener {
         m.config.validate(&name)?;
         let (onnx_path, bytes) = read_onnx_checked(&file, &name, &m.onnx, &m.onnx_sha256)?;
         let cfg = &m.config;
-        let plan = (|| -> TractResult<Plan> {
-            let model = tract_onnx::onnx().model_for_read(&mut std::io::Cursor::new(bytes))?;
-            let b: TDim = model.sym("B").into();
-            model
-                .with_input_fact(
-                    0,
-                    f32::fact([b, cfg.window.to_dim(), cfg.in_dim().to_dim()]).into(),
-                )?
-                .into_optimized()?
-                .into_runnable()
-        })()
-        .map_err(|e| LmError::invalid(onnx_path.display().to_string(), "graph", e.to_string()))?;
+        let graph = engine.load(
+            &bytes,
+            &GraphSpec {
+                inputs: &["x".to_string()],
+                outputs: 1,
+                file: &onnx_path.display().to_string(),
+                f32_shapes: &[vec![
+                    Dim::Sym("B"),
+                    Dim::N(cfg.window),
+                    Dim::N(cfg.in_dim()),
+                ]],
+            },
+        )?;
         Ok(Inbetweener {
             manifest: m,
             onnx_path,
-            plan,
+            graph,
         })
     }
 
@@ -311,8 +315,9 @@ impl Inbetweener {
     /// The residuals of many windows, [`BATCH`] windows to a graph run.
     pub fn run_windows(&self, xs: &[Vec<f32>]) -> Result<Vec<Vec<f32>>, LmError> {
         let cfg = self.config();
-        let rt = |e: TractError| LmError::Runtime(e.to_string());
         let (wi, wo) = (cfg.window * cfg.in_dim(), cfg.window * POSE_DIM);
+        let mut state = self.graph.spawn()?;
+        let mut res = Outputs::default();
         let mut out = Vec::with_capacity(xs.len());
         for chunk in xs.chunks(BATCH) {
             if let Some(x) = chunk.iter().find(|x| x.len() != wi) {
@@ -324,10 +329,9 @@ impl Inbetweener {
                 )));
             }
             let flat: Vec<f32> = chunk.concat();
-            let t =
-                Tensor::from_shape(&[chunk.len(), cfg.window, cfg.in_dim()], &flat).map_err(rt)?;
-            let res = self.plan.run(tvec!(t.into_tvalue())).map_err(rt)?;
-            let v = res[0].to_plain_array_view::<f32>().map_err(rt)?;
+            let shape = [chunk.len(), cfg.window, cfg.in_dim()];
+            state.run(&[In::F32(&shape, &flat)], None, &mut res)?;
+            let v = res.data(0);
             if v.len() != chunk.len() * wo {
                 return Err(LmError::Runtime(format!(
                     "the graph returned {} numbers, not {} × {} × {POSE_DIM}",
@@ -336,8 +340,7 @@ impl Inbetweener {
                     cfg.window
                 )));
             }
-            let all: Vec<f32> = v.iter().copied().collect();
-            out.extend(all.chunks(wo).map(<[f32]>::to_vec));
+            out.extend(v.chunks(wo).map(<[f32]>::to_vec));
         }
         Ok(out)
     }

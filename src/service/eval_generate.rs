@@ -71,7 +71,12 @@ pub fn sampling_name(s: &Sampling) -> String {
     if s.temperature == 0.0 {
         "greedy".into()
     } else {
-        format!("t={} top_k={} top_p={}", s.temperature, s.top_k, s.top_p)
+        let g = if s.guidance == 1.0 {
+            String::new()
+        } else {
+            format!(" guidance={}", s.guidance)
+        };
+        format!("t={} top_k={} top_p={}{g}", s.temperature, s.top_k, s.top_p)
     }
 }
 

@@ -38,6 +38,12 @@ impl FrameNet {
         p.insert("g_in.w".into(), normal(&[cfg.slots * de, dg], 0.02, dev)?);
         p.insert("g_in.b".into(), filled(&[dg], 0.0, dev)?);
         p.insert("g_cond".into(), normal(&[cfg.vocab_size, dg], 0.02, dev)?);
+        if cfg.cond_every {
+            p.insert(
+                "g_cond_all".into(),
+                normal(&[cfg.vocab_size, dg], 0.02, dev)?,
+            );
+        }
         p.insert(
             "g_pos".into(),
             normal(&[cfg.max_frames + 1, dg], 0.02, dev)?,
@@ -86,7 +92,11 @@ impl FrameNet {
         let (b, t, s) = val.dims3()?;
         let e =
             (self.emb("g_val", val)? + self.emb("g_chg", chg)?)?.reshape((b, t, s * c.d_emb))?;
-        let frames = self.params.lin(&e, "g_in")?;
+        let mut frames = self.params.lin(&e, "g_in")?;
+        if c.cond_every {
+            let every = cond.matmul(self.params.w("g_cond_all"))?.unsqueeze(1)?;
+            frames = frames.broadcast_add(&every)?;
+        }
         let cond = cond.matmul(self.params.w("g_cond"))?.unsqueeze(1)?;
         let x = Tensor::cat(&[&cond, &frames], 1)?;
         let pos = self.params.w("g_pos").narrow(0, 0, t + 1)?;
@@ -166,6 +176,11 @@ pub fn value_frames(tokens: &[u32], fl: usize) -> Vec<u32> {
         .collect()
 }
 
+/// The share of training windows (models with `cond_every`) whose labels
+/// are all dropped, so the model also learns the unconditioned
+/// distribution that classifier-free guidance steers away from.
+pub const UNCONDITIONED: f64 = 0.2;
+
 /// The window `[start, start + len)` of a sequence's value frames, with
 /// its history, conditioned on `labels` (each kept with `keep_label`) or,
 /// for classification, on `<bos>` alone with the class targets.
@@ -195,7 +210,7 @@ pub fn example(
                 classes.push((ci, idx));
             }
         }
-    } else {
+    } else if !(cfg.cond_every && rng.gen::<f64>() < UNCONDITIONED) {
         for k in &cfg.cond_kinds {
             if let Some(v) = labels.get(k) {
                 if rng.gen::<f64>() < keep_label {

@@ -99,7 +99,13 @@ pub fn global_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
     let e = g.op("Add", &[&ev, &ec], vec![], None);
     let flat = g.i64("shape_frame", &[1, 1, (c.slots * c.d_emb) as i64]);
     let e = g.op("Reshape", &[&e, &flat], vec![], None);
-    let frame = g.lin(&e, "g_in");
+    let mut frame = g.lin(&e, "g_in");
+    if c.cond_every {
+        let every = g.op("MatMul", &["cond", "g_cond_all"], vec![], None);
+        let one_d = g.i64("shape_every", &[1, 1, dg]);
+        let every = g.op("Reshape", &[&every, &one_d], vec![], None);
+        frame = g.op("Add", &[&frame, &every], vec![], None);
+    }
     let cv = g.op("MatMul", &["cond", "g_cond"], vec![], None);
     let one_d = g.i64("shape_one", &[1, 1, dg]);
     let cv = g.op("Reshape", &[&cv, &one_d], vec![], None);

@@ -209,6 +209,8 @@ pub struct FrameRun {
     /// On resume: a new total step count (the cosine schedule is recomputed
     /// over it, so a run can be shortened to anneal now, or extended).
     pub resume_steps: Option<usize>,
+    /// A new run's starting weights (a frame-model checkpoint folder).
+    pub init_from: Option<std::path::PathBuf>,
     pub config: FrameConfig,
     pub settings: RunSettings,
 }
@@ -236,6 +238,25 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
         cfg.validate("--frame flags")
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         let net = FrameNet::new(cfg.clone(), &dev)?;
+        if let Some(from) = &run.init_from {
+            let (_, t, file): (FrameState, _, _) = super::load_parts(from, &dev)?;
+            let fresh = net.params.load_matching(&t, &file)?;
+            // A new conditioning path starts silent, so the warm-started
+            // model begins exactly where its parent ended.
+            if fresh.iter().any(|k| k == "g_cond_all") {
+                let w = net.params.w("g_cond_all");
+                net.params["g_cond_all"].set(&w.zeros_like()?)?;
+            }
+            eprintln!(
+                "started from {}; fresh parameters: {}",
+                from.display(),
+                if fresh.is_empty() {
+                    "none".to_string()
+                } else {
+                    fresh.join(", ")
+                }
+            );
+        }
         let st = FrameState {
             config: cfg,
             vocabulary: vocab.clone(),

@@ -176,6 +176,36 @@ impl Params {
 
     /// Replaces every parameter from named tensors, which must all be there
     /// with their shapes; errors name `file` and the field.
+    /// Like `load_tensors`, but a parameter the checkpoint lacks keeps its
+    /// current value (a warm start into a larger configuration); returns
+    /// those names. A shape mismatch is still an error.
+    pub fn load_matching(
+        &self,
+        t: &BTreeMap<String, Tensor>,
+        file: &str,
+    ) -> anyhow::Result<Vec<String>> {
+        let present: BTreeMap<String, Tensor> = self
+            .0
+            .keys()
+            .filter_map(|k| t.get(k).map(|v| (k.clone(), v.clone())))
+            .collect();
+        let fresh = self
+            .0
+            .keys()
+            .filter(|k| !present.contains_key(*k))
+            .cloned()
+            .collect();
+        Params(
+            self.0
+                .iter()
+                .filter(|(k, _)| present.contains_key(*k))
+                .map(|(k, v)| (k.clone(), v.clone()))
+                .collect(),
+        )
+        .load_tensors(&present, file)?;
+        Ok(fresh)
+    }
+
     pub fn load_tensors(&self, t: &BTreeMap<String, Tensor>, file: &str) -> anyhow::Result<()> {
         for (name, var) in &self.0 {
             let src = t

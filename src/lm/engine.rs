@@ -1,0 +1,552 @@
+//! The model runtime behind one small trait: a loaded ONNX graph
+//! ([`Graph`]) spawns run states ([`GraphState`]), each owned by one
+//! generator or request and reused from step to step. Two runtimes
+//! implement it: tract (always built) and onnxruntime through `ort`
+//! (cargo feature `onnxruntime`, loaded at run time from the library the
+//! `onnxruntime` pip wheel ships). The frame model, the flat GPT and the
+//! learned in-betweener all run through it; every tract and ort type stays
+//! in this module.
+//!
+//! Key/value caches of fixed capacity ([`Cache`]) live beside the states:
+//! a step passes them by reference (no copy in either runtime) and writes
+//! the new position's rows in place.
+
+use super::LmError;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use tract_onnx::prelude::*;
+
+fn rt(e: impl std::fmt::Display) -> LmError {
+    LmError::Runtime(e.to_string())
+}
+
+/// Which runtime runs the graphs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Runtime {
+    #[default]
+    Tract,
+    Ort,
+}
+
+impl Runtime {
+    pub fn name(self) -> &'static str {
+        match self {
+            Runtime::Tract => "tract",
+            Runtime::Ort => "ort",
+        }
+    }
+}
+
+impl std::str::FromStr for Runtime {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Runtime, String> {
+        match s {
+            "tract" => Ok(Runtime::Tract),
+            "ort" | "onnxruntime" => Ok(Runtime::Ort),
+            other => Err(format!("unknown runtime {other:?}: expected tract or ort")),
+        }
+    }
+}
+
+/// One input of a step: a shape and its row-major data.
+pub enum In<'a> {
+    F32(&'a [usize], &'a [f32]),
+    I64(&'a [usize], &'a [i64]),
+}
+
+/// A step's outputs, all `f32`: shape and data per output, in the graph's
+/// order. The buffers are reused from step to step.
+#[derive(Default)]
+pub struct Outputs(pub Vec<(Vec<usize>, Vec<f32>)>);
+
+impl Outputs {
+    pub fn data(&self, i: usize) -> &[f32] {
+        &self.0[i].1
+    }
+    pub fn shape(&self, i: usize) -> &[usize] {
+        &self.0[i].0
+    }
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+    fn set(&mut self, i: usize, shape: &[usize], data: &[f32]) {
+        if self.0.len() <= i {
+            self.0.resize_with(i + 1, Default::default);
+        }
+        let (s, d) = &mut self.0[i];
+        s.clear();
+        s.extend_from_slice(shape);
+        d.clear();
+        d.extend_from_slice(data);
+    }
+}
+
+/// Key/value caches of fixed capacity, `[1, heads, cap, d_head]` per layer,
+/// and how many rows hold positions. Passed to a step after its other
+/// inputs, as (k, v) per layer.
+pub struct Cache {
+    k: Vec<Arc<Tensor>>,
+    v: Vec<Arc<Tensor>>,
+    heads: usize,
+    cap: usize,
+    dh: usize,
+    pub len: usize,
+}
+
+impl Cache {
+    pub fn new(layers: usize, heads: usize, cap: usize, dh: usize) -> Cache {
+        let z = || Arc::new(Tensor::zero::<f32>(&[1, heads, cap, dh]).expect("cache tensor"));
+        Cache {
+            k: (0..layers).map(|_| z()).collect(),
+            v: (0..layers).map(|_| z()).collect(),
+            heads,
+            cap,
+            dh,
+            len: 0,
+        }
+    }
+
+    /// An attention bias over `cap + 1` keys: 0 over the filled rows and
+    /// the new position (last), −1e9 elsewhere.
+    pub fn bias(&self) -> Vec<f32> {
+        let mut b = vec![-1e9f32; self.cap + 1];
+        for x in b.iter_mut().take(self.len) {
+            *x = 0.0;
+        }
+        b[self.cap] = 0.0;
+        b
+    }
+
+    pub fn cap(&self) -> usize {
+        self.cap
+    }
+
+    #[cfg_attr(not(feature = "onnxruntime"), allow(dead_code))]
+    fn shape(&self) -> [usize; 4] {
+        [1, self.heads, self.cap, self.dh]
+    }
+
+    /// The caches' tensors in input order (k, v per layer).
+    fn tensors(&self) -> impl Iterator<Item = &Arc<Tensor>> {
+        self.k.iter().zip(&self.v).flat_map(|(k, v)| [k, v])
+    }
+
+    /// Writes the new position's keys and values (`[1, heads, 1, dh]`
+    /// each, alternating k, v per layer: a step's last outputs) at row
+    /// `len`.
+    pub fn push(&mut self, out: &Outputs, first: usize) -> Result<(), LmError> {
+        let (p, dh, cap) = (self.len, self.dh, self.cap);
+        if p >= cap {
+            return Err(rt("cache full"));
+        }
+        for l in 0..self.k.len() {
+            for (j, dst) in [&mut self.k[l], &mut self.v[l]].into_iter().enumerate() {
+                let src = out.data(first + 2 * l + j);
+                let t = Arc::make_mut(dst);
+                let mut view = t.to_plain_array_view_mut::<f32>().map_err(rt)?;
+                let d = view
+                    .as_slice_mut()
+                    .ok_or_else(|| rt("cache tensor is not contiguous"))?;
+                for h in 0..self.heads {
+                    d[(h * cap + p) * dh..(h * cap + p + 1) * dh]
+                        .copy_from_slice(&src[h * dh..(h + 1) * dh]);
+                }
+            }
+        }
+        self.len += 1;
+        Ok(())
+    }
+}
+
+/// A loaded graph, shared by requests.
+pub trait Graph: Send + Sync {
+    /// A fresh run state (one per generator or request; reused per step).
+    fn spawn(&self) -> Result<Box<dyn GraphState>, LmError>;
+    fn runtime(&self) -> Runtime;
+}
+
+/// A graph's run state.
+pub trait GraphState: Send {
+    /// Runs one step on `inputs` (graph order) followed by `cache`'s
+    /// tensors, writing every output into `out`.
+    fn run(
+        &mut self,
+        inputs: &[In<'_>],
+        cache: Option<&Cache>,
+        out: &mut Outputs,
+    ) -> Result<(), LmError>;
+}
+
+/// A dimension of an input's shape: fixed, or a named symbol (a batch).
+#[derive(Clone, Debug)]
+pub enum Dim {
+    N(usize),
+    Sym(&'static str),
+}
+
+/// The inputs a graph must take and the number of outputs it must give,
+/// checked at load time; optional `f32` input shapes, pinned for tract
+/// before it optimises (for graphs exported with symbolic dimensions).
+pub struct GraphSpec<'a> {
+    pub inputs: &'a [String],
+    pub outputs: usize,
+    /// Where the graph came from, for errors.
+    pub file: &'a str,
+    pub f32_shapes: &'a [Vec<Dim>],
+}
+
+/// What loads graphs: the runtime and, for ort, its environment.
+#[derive(Clone)]
+pub struct Engine {
+    runtime: Runtime,
+    #[cfg(feature = "onnxruntime")]
+    ort: Option<Arc<ort_rt::OrtEnv>>,
+}
+
+impl Default for Engine {
+    fn default() -> Engine {
+        Engine::tract()
+    }
+}
+
+impl std::fmt::Debug for Engine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Engine({})", self.runtime.name())
+    }
+}
+
+impl Engine {
+    pub fn tract() -> Engine {
+        Engine {
+            runtime: Runtime::Tract,
+            #[cfg(feature = "onnxruntime")]
+            ort: None,
+        }
+    }
+
+    /// The engine for `runtime`; for ort, the library at `lib`, else
+    /// `ORT_DYLIB_PATH`. Fails with the fix when the library is missing,
+    /// unloadable or of an unsupported version, or when this build lacks
+    /// the `onnxruntime` feature.
+    pub fn new(runtime: Runtime, lib: Option<&Path>) -> Result<Engine, LmError> {
+        match runtime {
+            Runtime::Tract => Ok(Engine::tract()),
+            Runtime::Ort => Engine::ort(lib),
+        }
+    }
+
+    #[cfg(not(feature = "onnxruntime"))]
+    fn ort(_lib: Option<&Path>) -> Result<Engine, LmError> {
+        Err(LmError::Runtime(
+            "--runtime ort: this build has no onnxruntime support; rebuild with `cargo build --release --features onnxruntime` (the image and the default build are tract-only)".into(),
+        ))
+    }
+
+    #[cfg(feature = "onnxruntime")]
+    fn ort(lib: Option<&Path>) -> Result<Engine, LmError> {
+        let env = ort_rt::OrtEnv::open(&ort_library(lib)?)?;
+        Ok(Engine {
+            runtime: Runtime::Ort,
+            ort: Some(Arc::new(env)),
+        })
+    }
+
+    pub fn runtime(&self) -> Runtime {
+        self.runtime
+    }
+
+    /// Loads an ONNX graph (static shapes, as the trainer exports them),
+    /// checking its input names and output count against `spec`.
+    pub fn load(&self, bytes: &[u8], spec: &GraphSpec) -> Result<Arc<dyn Graph>, LmError> {
+        let bad = |e: String| LmError::invalid(spec.file, "graph", e);
+        match self.runtime {
+            Runtime::Tract => {
+                let model = tract_onnx::onnx()
+                    .model_for_read(&mut std::io::Cursor::new(bytes))
+                    .map_err(|e| bad(e.to_string()))?;
+                check_names(&model, spec).map_err(|e| bad(e.to_string()))?;
+                let model = pin_shapes(model, spec.f32_shapes).map_err(|e| bad(e.to_string()))?;
+                let plan = model
+                    .into_optimized()
+                    .and_then(|m| m.into_runnable())
+                    .map_err(|e| bad(e.to_string()))?;
+                Ok(Arc::new(TractGraph(plan)))
+            }
+            Runtime::Ort => {
+                #[cfg(feature = "onnxruntime")]
+                {
+                    let env = self.ort.clone().expect("ort engine has an environment");
+                    Ok(Arc::new(ort_rt::OrtGraph::load(env, bytes, spec)?))
+                }
+                #[cfg(not(feature = "onnxruntime"))]
+                unreachable!("an ort engine is only built with the onnxruntime feature")
+            }
+        }
+    }
+}
+
+/// The library `--runtime ort` loads: the flag, else `ORT_DYLIB_PATH`.
+pub fn ort_library(lib: Option<&Path>) -> Result<PathBuf, LmError> {
+    const HOW: &str = "install the onnxruntime 1.32 wheel (`pip install -r scripts/requirements.txt`) and point ORT_DYLIB_PATH (or --ort-lib) at site-packages/onnxruntime/capi/libonnxruntime.so.*";
+    let path = match lib {
+        Some(p) => p.to_path_buf(),
+        None => match std::env::var_os("ORT_DYLIB_PATH") {
+            Some(p) if !p.is_empty() => PathBuf::from(p),
+            _ => {
+                return Err(LmError::Runtime(format!(
+                    "--runtime ort: no onnxruntime library given; {HOW}"
+                )))
+            }
+        },
+    };
+    if !path.is_file() {
+        return Err(LmError::Runtime(format!(
+            "--runtime ort: {}: no such file; {HOW}",
+            path.display()
+        )));
+    }
+    Ok(path)
+}
+
+fn check_names(model: &tract_onnx::prelude::InferenceModel, spec: &GraphSpec) -> TractResult<()> {
+    let got_in: Vec<String> = model
+        .input_outlets()?
+        .iter()
+        .map(|o| model.node(o.node).name.clone())
+        .collect();
+    let got_out = model.output_outlets()?.len();
+    if got_in != spec.inputs || got_out != spec.outputs {
+        anyhow::bail!(
+            "the graph's inputs {got_in:?} (and {got_out} outputs) are not the {:?} (and {} outputs) the manifest's config implies",
+            spec.inputs,
+            spec.outputs
+        );
+    }
+    Ok(())
+}
+
+fn pin_shapes(mut model: InferenceModel, shapes: &[Vec<Dim>]) -> TractResult<InferenceModel> {
+    for (i, dims) in shapes.iter().enumerate() {
+        let dims: Vec<TDim> = dims
+            .iter()
+            .map(|d| match d {
+                Dim::N(n) => n.to_dim(),
+                Dim::Sym(s) => model.sym(s).into(),
+            })
+            .collect();
+        model = model.with_input_fact(i, f32::fact(dims).into())?;
+    }
+    Ok(model)
+}
+
+struct TractGraph(Arc<TypedRunnableModel>);
+
+impl Graph for TractGraph {
+    fn spawn(&self) -> Result<Box<dyn GraphState>, LmError> {
+        Ok(Box::new(TractState(self.0.spawn().map_err(rt)?)))
+    }
+    fn runtime(&self) -> Runtime {
+        Runtime::Tract
+    }
+}
+
+struct TractState(TypedSimpleState);
+
+impl GraphState for TractState {
+    fn run(
+        &mut self,
+        inputs: &[In<'_>],
+        cache: Option<&Cache>,
+        out: &mut Outputs,
+    ) -> Result<(), LmError> {
+        let mut tv: TVec<TValue> = tvec![];
+        for i in inputs {
+            let t = match i {
+                In::F32(s, d) => Tensor::from_shape(s, d),
+                In::I64(s, d) => Tensor::from_shape(s, d),
+            }
+            .map_err(rt)?;
+            tv.push(t.into_tvalue());
+        }
+        if let Some(c) = cache {
+            for t in c.tensors() {
+                tv.push(TValue::from_const(t.clone()));
+            }
+        }
+        let res = self.0.run(tv).map_err(rt)?;
+        // Drop the turn's values, the cache tensors' clones among them, so
+        // the next in-place write to a cache does not copy it.
+        self.0.reset_turn().map_err(rt)?;
+        for (i, t) in res.iter().enumerate() {
+            let data = t
+                .try_as_plain_ram()
+                .map_err(rt)?
+                .as_slice::<f32>()
+                .map_err(rt)?;
+            out.set(i, t.shape(), data);
+        }
+        out.0.truncate(res.len());
+        Ok(())
+    }
+}
+
+#[cfg(feature = "onnxruntime")]
+mod ort_rt {
+    use super::{rt, Cache, Graph, GraphSpec, GraphState, In, LmError, Outputs, Runtime};
+    use ort::session::Session;
+    use ort::value::TensorRef;
+    use std::path::Path;
+    use std::sync::{Arc, Mutex};
+
+    /// The loaded library's environment.
+    pub struct OrtEnv(ort::environment::Environment);
+
+    impl OrtEnv {
+        pub fn open(path: &Path) -> Result<OrtEnv, LmError> {
+            let shown = path.display().to_string();
+            // ort panics when the library lacks the API version it wants
+            // (an older onnxruntime); turn that into a start-up error.
+            let p = path.to_path_buf();
+            let built = std::panic::catch_unwind(move || -> Result<_, String> {
+                let b = ort::init_from(&p).map_err(|e| e.to_string())?;
+                let env = b.with_name("choreo").build().map_err(|e| e.to_string())?;
+                let _ = ort::info();
+                Ok(env)
+            });
+            match built {
+                Ok(Ok(env)) => Ok(OrtEnv(env)),
+                Ok(Err(e)) => Err(LmError::Runtime(format!(
+                    "--runtime ort: {shown}: cannot load onnxruntime: {e}; install the onnxruntime 1.32 wheel (pip install -r scripts/requirements.txt)"
+                ))),
+                Err(_) => Err(LmError::Runtime(format!(
+                    "--runtime ort: {shown}: not an onnxruntime this build supports (it needs API version {} or later, onnxruntime 1.{} or newer); install the onnxruntime 1.32 wheel (pip install -r scripts/requirements.txt)",
+                    ort::MINOR_VERSION, ort::MINOR_VERSION
+                ))),
+            }
+        }
+    }
+
+    /// A graph on ort: the model bytes and a pool of sessions (ort runs a
+    /// session through `&mut`, so each live state holds one).
+    pub struct OrtGraph {
+        env: Arc<OrtEnv>,
+        bytes: Arc<[u8]>,
+        pool: Arc<Mutex<Vec<Session>>>,
+    }
+
+    fn session(env: &OrtEnv, bytes: &[u8]) -> Result<Session, LmError> {
+        Session::builder(&env.0)
+            .map_err(rt)?
+            .with_intra_threads(1)
+            .map_err(rt)?
+            .with_inter_threads(1)
+            .map_err(rt)?
+            .commit_from_memory(bytes)
+            .map_err(rt)
+    }
+
+    impl OrtGraph {
+        pub fn load(env: Arc<OrtEnv>, bytes: &[u8], spec: &GraphSpec) -> Result<OrtGraph, LmError> {
+            let s = session(&env, bytes)
+                .map_err(|e| LmError::invalid(spec.file, "graph", e.to_string()))?;
+            let got: Vec<String> = s.inputs().iter().map(|o| o.name().to_string()).collect();
+            if got != spec.inputs || s.outputs().len() != spec.outputs {
+                return Err(LmError::invalid(
+                    spec.file,
+                    "graph",
+                    format!(
+                        "the graph's inputs {got:?} (and {} outputs) are not the {:?} (and {} outputs) the manifest's config implies",
+                        s.outputs().len(),
+                        spec.inputs,
+                        spec.outputs
+                    ),
+                ));
+            }
+            Ok(OrtGraph {
+                env,
+                bytes: bytes.into(),
+                pool: Arc::new(Mutex::new(vec![s])),
+            })
+        }
+    }
+
+    impl Graph for OrtGraph {
+        fn spawn(&self) -> Result<Box<dyn GraphState>, LmError> {
+            let pooled = self.pool.lock().map_err(rt)?.pop();
+            let s = match pooled {
+                Some(s) => s,
+                None => session(&self.env, &self.bytes)?,
+            };
+            Ok(Box::new(OrtState {
+                session: Some(s),
+                pool: self.pool.clone(),
+            }))
+        }
+        fn runtime(&self) -> Runtime {
+            Runtime::Ort
+        }
+    }
+
+    struct OrtState {
+        session: Option<Session>,
+        pool: Arc<Mutex<Vec<Session>>>,
+    }
+
+    impl Drop for OrtState {
+        fn drop(&mut self) {
+            if let (Some(s), Ok(mut p)) = (self.session.take(), self.pool.lock()) {
+                p.push(s);
+            }
+        }
+    }
+
+    impl GraphState for OrtState {
+        fn run(
+            &mut self,
+            inputs: &[In<'_>],
+            cache: Option<&Cache>,
+            out: &mut Outputs,
+        ) -> Result<(), LmError> {
+            let session = self.session.as_mut().expect("state holds a session");
+            let mut vals: Vec<ort::session::SessionInputValue<'_>> = Vec::with_capacity(16);
+            for i in inputs {
+                vals.push(match i {
+                    In::F32(s, d) => TensorRef::from_array_view((s.to_vec(), *d))
+                        .map_err(rt)?
+                        .into(),
+                    In::I64(s, d) => TensorRef::from_array_view((s.to_vec(), *d))
+                        .map_err(rt)?
+                        .into(),
+                });
+            }
+            if let Some(c) = cache {
+                let shape = c.shape().to_vec();
+                for t in c.tensors() {
+                    let d = t
+                        .try_as_plain_ram()
+                        .map_err(rt)?
+                        .as_slice::<f32>()
+                        .map_err(rt)?;
+                    vals.push(
+                        TensorRef::from_array_view((shape.clone(), d))
+                            .map_err(rt)?
+                            .into(),
+                    );
+                }
+            }
+            let res = session.run(vals.as_slice()).map_err(rt)?;
+            let n = res.len();
+            for i in 0..n {
+                let (shape, data) = res[i].try_extract_tensor::<f32>().map_err(rt)?;
+                let shape: Vec<usize> = shape.iter().map(|&d| d as usize).collect();
+                out.set(i, &shape, data);
+            }
+            out.0.truncate(n);
+            Ok(())
+        }
+    }
+}
