@@ -206,3 +206,32 @@ fn an_ort_stream_is_the_one_shot_output_for_one_seed() {
     assert_eq!(f1, f2);
     assert_eq!(f1, a[..fl]);
 }
+
+#[test]
+fn tract_and_ort_agree_on_the_bundled_inbetweener() {
+    use choreo::lm::inbetween::Inbetweener;
+    let Some(ort) = ort_engine() else { return };
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/inbetween");
+    let t = Inbetweener::load_with(&dir, &Engine::tract()).unwrap();
+    let o = Inbetweener::load_with(&dir, &ort).unwrap();
+    let cfg = t.config();
+    let n = cfg.window * cfg.in_dim();
+    // Three windows (one batch) of smooth, bounded inputs.
+    let xs: Vec<Vec<f32>> = (0..3)
+        .map(|w| {
+            (0..n)
+                .map(|i| (0.37 * i as f32 + w as f32).sin() * 0.5)
+                .collect()
+        })
+        .collect();
+    let a = t.run_windows(&xs).unwrap();
+    let b = o.run_windows(&xs).unwrap();
+    let (mut worst, mut scale) = (0f32, 0f32);
+    for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+        worst = worst.max((x - y).abs());
+        scale = scale.max(x.abs());
+    }
+    eprintln!("in-betweener tract vs ort: max |diff| {worst:.2e} (outputs up to {scale:.3})");
+    assert!(scale > 1e-4);
+    assert!(worst < 1e-4, "{worst}");
+}
