@@ -137,6 +137,11 @@ struct FrameArgs {
     /// initialisation (e.g. `g_cond_all` when adding --cond-every).
     #[arg(long, conflicts_with = "resume")]
     init_from: Option<PathBuf>,
+    /// Export the configured network with its random initial weights to
+    /// --out/export and stop (no training, no evaluation): for timing
+    /// bigger models (`choreo bench model`) before spending CPU on them.
+    #[arg(long, conflicts_with_all = ["resume", "init_from"])]
+    untrained: bool,
     /// Feed the conditioning into every frame's global input, not only
     /// position 0, and train with whole-conditioning dropout (guidance).
     #[arg(long)]
@@ -509,6 +514,28 @@ fn frame(a: FrameArgs) -> Result<()> {
             max_seconds: a.max_seconds,
         },
     };
+    if a.untrained {
+        let cfg = run.config.clone();
+        let net = tr::frame::FrameNet::new(cfg.clone(), &tr::device())?;
+        let st = tr::frame::FrameState {
+            config: cfg,
+            vocabulary: vocab.clone(),
+            settings: run.settings.clone(),
+            step: 0,
+            adam_step: 0,
+            history: Vec::new(),
+            data: corpus.info.clone(),
+            metrics: BTreeMap::from([("parameters".to_string(), net.params.count() as f64)]),
+            train_seconds: 0.0,
+        };
+        export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"))?;
+        eprintln!(
+            "untrained model, {} parameters, exported to {}",
+            net.params.count(),
+            a.out.join("export").display()
+        );
+        return Ok(());
+    }
     let st = tr::frame::run(&run, &vocab, &corpus)?;
     let net = tr::frame::load(&a.out, &tr::device())?.1;
     export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"))?;

@@ -176,8 +176,8 @@ pub fn value_frames(tokens: &[u32], fl: usize) -> Vec<u32> {
         .collect()
 }
 
-/// The share of training windows (models with `cond_every`) whose labels
-/// are all dropped, so the model also learns the unconditioned
+/// The share of training windows (models with `cond_every`, labels kept
+/// with probability below 1) whose labels are all dropped, so the model also learns the unconditioned
 /// distribution that classifier-free guidance steers away from.
 pub const UNCONDITIONED: f64 = 0.2;
 
@@ -210,7 +210,7 @@ pub fn example(
                 classes.push((ci, idx));
             }
         }
-    } else if !(cfg.cond_every && rng.gen::<f64>() < UNCONDITIONED) {
+    } else if !(cfg.cond_every && keep_label < 1.0 && rng.gen::<f64>() < UNCONDITIONED) {
         for k in &cfg.cond_kinds {
             if let Some(v) = labels.get(k) {
                 if rng.gen::<f64>() < keep_label {

@@ -118,6 +118,21 @@ pub fn evaluate(
     max_windows: usize,
     dev: &Device,
 ) -> Result<FrameEval> {
+    evaluate_labels(net, vocab, val, fl, max_windows, dev, 1.0)
+}
+
+/// [`evaluate`] with each label kept with probability `keep_label` (0 =
+/// every window unlabelled: the gap to 1 is how many bits a frame the
+/// labels are worth to the model).
+pub fn evaluate_labels(
+    net: &FrameNet,
+    vocab: &Vocabulary,
+    val: &[Sequence],
+    fl: usize,
+    max_windows: usize,
+    dev: &Device,
+    keep_label: f64,
+) -> Result<FrameEval> {
     let c = &net.cfg;
     let values: Vec<Vec<u32>> = val.iter().map(|s| value_frames(&s.tokens, fl)).collect();
     let windows: Vec<(usize, usize, usize)> = values
@@ -145,7 +160,9 @@ pub fn evaluate(
                 .iter()
                 .map(|&(i, st, len)| {
                     let l = &val[i].labels;
-                    example(c, vocab, &values[i], st, len, l, as_cls, 1.0, &mut rng)
+                    example(
+                        c, vocab, &values[i], st, len, l, as_cls, keep_label, &mut rng,
+                    )
                 })
                 .collect();
             let b = batch(c, &exs, dev)?;
@@ -391,6 +408,7 @@ pub fn table(
             })
             .collect();
         let ev = evaluate(net, vocab, &val, fl, usize::MAX, &dev)?;
+        let unlabelled = evaluate_labels(net, vocab, &val, fl, usize::MAX, &dev, 0.0)?;
         let val_windows = data::context_windows(&val, fl, net.cfg.max_frames);
         let classes: Vec<serde_json::Value> = net
             .cfg
@@ -424,6 +442,8 @@ pub fn table(
             "slot_unigram_bits_per_frame": bits_per_frame(slot, fl),
             "unigram_bits_per_frame": bits_per_frame(uni, fl),
             "ratio_to_delta": ev.bits_per_frame / delta,
+            "unlabelled_bits_per_frame": unlabelled.bits_per_frame,
+            "label_bits_per_frame": unlabelled.bits_per_frame - ev.bits_per_frame,
             "classification": classes,
         }));
     }
