@@ -346,7 +346,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
     }
     // Each row names its sampling.
     assert_eq!(rows[0].sampling, "greedy");
-    assert_eq!(rows[1].sampling, "t=0.95 top_k=0 top_p=0.95");
+    assert_eq!(rows[1].sampling, "t=1 top_k=0 top_p=0.95");
     // Bad input: a kind the model is not conditioned on; an empty folder.
     let bad = GenOptions {
         label_kind: "dancer".into(),

@@ -516,18 +516,12 @@ fn frame(a: FrameArgs) -> Result<()> {
     };
     if a.untrained {
         let cfg = run.config.clone();
+        cfg.validate("--frame flags")
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
         let net = tr::frame::FrameNet::new(cfg.clone(), &tr::device())?;
-        let st = tr::frame::FrameState {
-            config: cfg,
-            vocabulary: vocab.clone(),
-            settings: run.settings.clone(),
-            step: 0,
-            adam_step: 0,
-            history: Vec::new(),
-            data: corpus.info.clone(),
-            metrics: BTreeMap::from([("parameters".to_string(), net.params.count() as f64)]),
-            train_seconds: 0.0,
-        };
+        let mut st = tr::frame::FrameState::fresh(cfg, &vocab, &run.settings, &corpus);
+        st.metrics
+            .insert("parameters".to_string(), net.params.count() as f64);
         export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"))?;
         eprintln!(
             "untrained model, {} parameters, exported to {}",

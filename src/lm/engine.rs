@@ -252,7 +252,7 @@ impl Engine {
         let env = ort_rt::OrtEnv::open(&ort_library(lib)?)?;
         Ok(Engine {
             runtime: Runtime::Ort,
-            ort: Some(Arc::new(env)),
+            ort: Some(env),
         })
     }
 
@@ -403,12 +403,26 @@ mod ort_rt {
     use std::path::Path;
     use std::sync::{Arc, Mutex};
 
-    /// The loaded library's environment.
+    /// The loaded library's environment. onnxruntime allows one per
+    /// process, so it is made once and shared by every engine; asking for a
+    /// different library afterwards is an error.
     pub struct OrtEnv(ort::environment::Environment);
 
+    static ENV: Mutex<Option<(std::path::PathBuf, Arc<OrtEnv>)>> = Mutex::new(None);
+
     impl OrtEnv {
-        pub fn open(path: &Path) -> Result<OrtEnv, LmError> {
+        pub fn open(path: &Path) -> Result<Arc<OrtEnv>, LmError> {
             let shown = path.display().to_string();
+            let mut env = ENV.lock().map_err(rt)?;
+            if let Some((p, e)) = env.as_ref() {
+                if p.as_path() == path {
+                    return Ok(e.clone());
+                }
+                return Err(LmError::Runtime(format!(
+                    "--runtime ort: {shown}: cannot load onnxruntime: this process already runs the one at {}",
+                    p.display()
+                )));
+            }
             // ort panics when the library lacks the API version it wants
             // (an older onnxruntime); turn that into a start-up error.
             let p = path.to_path_buf();
@@ -419,7 +433,11 @@ mod ort_rt {
                 Ok(env)
             });
             match built {
-                Ok(Ok(env)) => Ok(OrtEnv(env)),
+                Ok(Ok(e)) => {
+                    let e = Arc::new(OrtEnv(e));
+                    *env = Some((path.to_path_buf(), e.clone()));
+                    Ok(e)
+                }
                 Ok(Err(e)) => Err(LmError::Runtime(format!(
                     "--runtime ort: {shown}: cannot load onnxruntime: {e}; install the onnxruntime 1.32 wheel (pip install -r scripts/requirements.txt)"
                 ))),

@@ -48,11 +48,12 @@ impl Default for Sampling {
 /// The sampling a request gets when it names none (only a seed, or
 /// nothing): of the settings `choreo eval generate` scored on held-out
 /// Bandai (style) and AIST++-VRM (genre) clips with the bundled frame
-/// model, the one whose acceleration and jerk came closest to the real
-/// clips' (README, "Generation"). Greedy decoding freezes the body: the
-/// likeliest change of every slot is "none".
+/// model, the one that keeps the body moving (frozen 9 % / 20 % of 1 s
+/// windows) with acceleration and jerk nearest real (README,
+/// "Generation"). Greedy decoding freezes the body: the likeliest change of
+/// every slot is "none"; t 0.95 froze 37 % / 54 %.
 pub const RECOMMENDED: Sampling = Sampling {
-    temperature: 0.95,
+    temperature: 1.0,
     top_k: 0,
     top_p: 0.95,
     seed: 0,

@@ -204,6 +204,28 @@ pub struct FrameState {
     pub train_seconds: f64,
 }
 
+impl FrameState {
+    /// The state of a run that has not taken a step.
+    pub fn fresh(
+        config: FrameConfig,
+        vocab: &Vocabulary,
+        settings: &RunSettings,
+        corpus: &Corpus,
+    ) -> FrameState {
+        FrameState {
+            config,
+            vocabulary: vocab.clone(),
+            settings: settings.clone(),
+            step: 0,
+            adam_step: 0,
+            history: Vec::new(),
+            data: corpus.info.clone(),
+            metrics: BTreeMap::new(),
+            train_seconds: 0.0,
+        }
+    }
+}
+
 /// Loads a frame-model checkpoint folder.
 pub fn load(dir: &std::path::Path, dev: &Device) -> Result<(FrameState, FrameNet, AdamW)> {
     let (st, t, file): (FrameState, _, _) = super::load_parts(dir, dev)?;
@@ -274,17 +296,7 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
                 }
             );
         }
-        let st = FrameState {
-            config: cfg,
-            vocabulary: vocab.clone(),
-            settings: run.settings.clone(),
-            step: 0,
-            adam_step: 0,
-            history: Vec::new(),
-            data: corpus.info.clone(),
-            metrics: BTreeMap::new(),
-            train_seconds: 0.0,
-        };
+        let st = FrameState::fresh(cfg, vocab, &run.settings, corpus);
         let opt = AdamW::new(run.settings.lr, run.settings.weight_decay);
         (st, net, opt)
     };
