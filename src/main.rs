@@ -404,7 +404,9 @@ enum EvalCmd {
         json: bool,
     },
     /// Thesis 000 Table 3.2 protocol on a corpus: every window a query,
-    /// same-sequence neighbours excluded, k = 10, majority vote, entropy (bans).
+    /// same-sequence neighbours excluded (or, --same-sequence allow, the
+    /// thesis's own protocol), k = 10, majority vote, entropy (bans), and
+    /// the majority class beside.
     Query {
         #[arg(long)]
         data: Vec<PathBuf>,
@@ -418,6 +420,10 @@ enum EvalCmd {
         hop: usize,
         #[arg(long, default_value_t = 10)]
         k: usize,
+        /// exclude: no neighbour from the query's own sequence (strict);
+        /// allow: any window but the query itself (the thesis's protocol).
+        #[arg(long, default_value = "exclude")]
+        same_sequence: eval_q::SameSequence,
         #[arg(long)]
         json: bool,
     },
@@ -778,9 +784,10 @@ fn run(cli: Cli) -> Result<()> {
                     embedding,
                     hop,
                     k,
+                    same_sequence,
                     json,
                 },
-        } => eval_query(data, labels, embedding, hop, k, json),
+        } => eval_query(data, labels, embedding, hop, k, same_sequence, json),
         Cmd::Eval {
             cmd: EvalCmd::Tokenize { data, plot, json },
         } => eval_tokenize(data, plot, json),
@@ -942,6 +949,7 @@ fn eval_query(
     embedding: Vec<String>,
     hop: usize,
     k: usize,
+    same: eval_q::SameSequence,
     json: bool,
 ) -> Result<()> {
     if data.is_empty() {
@@ -967,17 +975,26 @@ fn eval_query(
             files.len()
         );
     }
-    let rows = eval_q::evaluate(&corpus, &labels, k);
+    let rows = eval_q::evaluate_with(&corpus, &labels, k, same);
+    let majority = eval_q::majority(&corpus, &labels);
     if json {
+        let majority: Vec<_> = majority
+            .iter()
+            .map(|(l, a, n)| json!({"label": l, "accuracy": a, "windows": n}))
+            .collect();
         println!(
             "{}",
-            json!({"rows": rows, "sequences": corpus.sequences, "windows": corpus.sequence.len(), "errors": corpus.errors, "seconds": t.elapsed().as_secs_f64()})
+            json!({"rows": rows, "majority": majority, "same_sequence": same, "sequences": corpus.sequences, "windows": corpus.sequence.len(), "errors": corpus.errors, "seconds": t.elapsed().as_secs_f64()})
         );
     } else {
         println!(
-            "{} sequences, {} windows (128 frames at 60 fps, hop {hop}), k = {k}, same-sequence neighbours excluded",
+            "{} sequences, {} windows (128 frames at 60 fps, hop {hop}), k = {k}, same-sequence neighbours {}",
             corpus.sequences,
-            corpus.sequence.len()
+            corpus.sequence.len(),
+            match same {
+                eval_q::SameSequence::Exclude => "excluded",
+                eval_q::SameSequence::Allow => "allowed (the query window itself excluded)",
+            }
         );
         println!(
             "{:<6} {:<10} {:<12} {:>9} {:>13} {:>8}",
@@ -992,6 +1009,17 @@ fn eval_query(
                 100.0 * r.accuracy,
                 r.entropy_bans,
                 r.queries
+            );
+        }
+        for (l, a, n) in &majority {
+            println!(
+                "{:<6} {:<10} {:<12} {:>8.1}% {:>13} {:>8}",
+                "majority",
+                "",
+                l,
+                100.0 * a,
+                "",
+                n
             );
         }
         for e in &corpus.errors {

@@ -3,7 +3,10 @@
 //! k = 10; the predicted label is the majority of the neighbours' labels
 //! (ties go to the label whose first vote is nearest); reported per label
 //! kind: accuracy, and the mean entropy of the neighbours' labels in bans
-//! (log base 10). Exact search, all three embeddings, both metrics.
+//! (log base 10). Exact search, all three embeddings, both metrics. The
+//! thesis's own protocol, where a window's neighbours may come from its own
+//! sequence (only the window itself is left out), is `SameSequence::Allow`;
+//! a majority-class row is the trivial baseline beside both.
 
 use crate::features::{channels72, window, window_starts, Embedding, Extractor, Pca, StftParams};
 use crate::index::{dot, push_top, Hit, Metric};
@@ -82,10 +85,40 @@ pub fn build_corpus(files: &[PathBuf], hop: usize, embeddings: &[Embedding]) -> 
 /// Top-k neighbours of every vector under both metrics, excluding the same
 /// sequence. Dot products are computed once and shared by the two metrics;
 /// rows are split across threads.
+/// Which neighbours a query may have.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SameSequence {
+    /// Strict: no window of the query's own sequence.
+    Exclude,
+    /// The thesis's protocol: any window but the query itself.
+    Allow,
+}
+
+impl std::str::FromStr for SameSequence {
+    type Err = String;
+    fn from_str(s: &str) -> Result<SameSequence, String> {
+        match s {
+            "exclude" => Ok(SameSequence::Exclude),
+            "allow" => Ok(SameSequence::Allow),
+            other => Err(format!("{other:?}: expected exclude or allow")),
+        }
+    }
+}
+
 pub fn knn_both(
     vectors: &[Vec<f32>],
     sequence: &[usize],
     k: usize,
+) -> (Vec<Vec<Hit>>, Vec<Vec<Hit>>) {
+    knn_both_with(vectors, sequence, k, SameSequence::Exclude)
+}
+
+pub fn knn_both_with(
+    vectors: &[Vec<f32>],
+    sequence: &[usize],
+    k: usize,
+    same: SameSequence,
 ) -> (Vec<Vec<Hit>>, Vec<Vec<Hit>>) {
     let n = vectors.len();
     let norms: Vec<f32> = vectors.iter().map(|v| dot(v, v).sqrt()).collect();
@@ -107,7 +140,11 @@ pub fn knn_both(
                     for i in lo..hi {
                         let (mut c, mut e) = (Vec::with_capacity(k + 1), Vec::with_capacity(k + 1));
                         for j in 0..n {
-                            if sequence[j] == sequence[i] {
+                            let skip = match same {
+                                SameSequence::Exclude => sequence[j] == sequence[i],
+                                SameSequence::Allow => j == i,
+                            };
+                            if skip {
                                 continue;
                             }
                             let d = dot(&vectors[i], &vectors[j]);
@@ -195,13 +232,42 @@ pub fn score(neighbours: &[Vec<Hit>], labels: &[Labels], kind: &str) -> (f64, f6
     )
 }
 
+/// The majority-class baseline per label kind: the share of labelled
+/// windows whose label is the most common one, over the same windows the
+/// queries score.
+pub fn majority(corpus: &Corpus, label_kinds: &[String]) -> Vec<(String, f64, usize)> {
+    label_kinds
+        .iter()
+        .map(|kind| {
+            let mut counts: HashMap<&str, usize> = HashMap::new();
+            for l in &corpus.labels {
+                if let Some(v) = l.get(kind) {
+                    *counts.entry(v.as_str()).or_default() += 1;
+                }
+            }
+            let n: usize = counts.values().sum();
+            let top = counts.values().copied().max().unwrap_or(0);
+            (kind.clone(), top as f64 / n.max(1) as f64, n)
+        })
+        .collect()
+}
+
 pub fn evaluate(corpus: &Corpus, label_kinds: &[String], k: usize) -> Vec<EvalRow> {
+    evaluate_with(corpus, label_kinds, k, SameSequence::Exclude)
+}
+
+pub fn evaluate_with(
+    corpus: &Corpus,
+    label_kinds: &[String],
+    k: usize,
+    same: SameSequence,
+) -> Vec<EvalRow> {
     let mut rows = Vec::new();
     for e in Embedding::ALL {
         let Some(v) = corpus.vectors.get(&e) else {
             continue;
         };
-        let (cos, euc) = knn_both(v, &corpus.sequence, k);
+        let (cos, euc) = knn_both_with(v, &corpus.sequence, k, same);
         for (metric, nb) in [(Metric::Cosine, &cos), (Metric::Euclidean, &euc)] {
             for kind in label_kinds {
                 let (accuracy, entropy_bans, queries) = score(nb, &corpus.labels, kind);
@@ -258,5 +324,22 @@ mod tests {
         let (cos, _) = knn_both(&v, &[0, 0, 1], 2);
         assert_eq!(cos[0].len(), 1);
         assert_eq!(cos[0][0].id, 2);
+        // The thesis's protocol keeps the sibling window, never the query.
+        let (cos, _) = knn_both_with(&v, &[0, 0, 1], 2, SameSequence::Allow);
+        assert_eq!(cos[0].iter().map(|h| h.id).collect::<Vec<_>>(), vec![1, 2]);
+    }
+
+    #[test]
+    fn majority_counts_labelled_windows() {
+        let corpus = Corpus {
+            sequence: vec![0, 0, 1, 2],
+            labels: vec![labels("a"), labels("a"), labels("b"), Labels::new()],
+            vectors: HashMap::new(),
+            sequences: 3,
+            errors: Vec::new(),
+        };
+        let m = majority(&corpus, &["style".to_string()]);
+        assert_eq!(m[0].2, 3);
+        assert!((m[0].1 - 2.0 / 3.0).abs() < 1e-12);
     }
 }
