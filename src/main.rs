@@ -2,11 +2,11 @@
 
 mod cli;
 
-/// The system allocator with a counter of allocations, for the
-/// allocations-per-token figure of `choreo bench model` (one relaxed atomic
-/// add per allocation).
+/// mimalloc with a counter of allocations, for the allocations-per-token
+/// figure of `choreo bench model` (one relaxed atomic add per allocation).
 mod choreo_alloc {
-    use std::alloc::{GlobalAlloc, Layout, System};
+    use mimalloc::MiMalloc as System;
+    use std::alloc::{GlobalAlloc, Layout};
     use std::sync::atomic::{AtomicU64, Ordering};
 
     static ALLOCS: AtomicU64 = AtomicU64::new(0);
