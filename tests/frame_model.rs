@@ -19,34 +19,14 @@ use choreo::train::model::AdamW;
 use choreo::train::{baselines, frame_export, RunSettings};
 use std::collections::{BTreeMap, BTreeSet};
 
+mod common;
+
 fn vocab() -> Vocabulary {
-    let mut labels: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    labels.insert(
-        "style".into(),
-        ["happy", "sad"].iter().map(|s| s.to_string()).collect(),
-    );
-    Vocabulary::new(labels)
+    common::style_vocab()
 }
 
 fn config(v: &Vocabulary) -> FrameConfig {
-    FrameConfig {
-        bins: v.bins,
-        slots: v.frame_len() - 1,
-        radius: 12,
-        d_emb: 8,
-        d_global: 32,
-        global_layers: 2,
-        global_heads: 4,
-        d_local: 32,
-        local_layers: 1,
-        local_heads: 4,
-        max_frames: 24,
-        vocab_size: v.size(),
-        cond_kinds: vec!["style".into()],
-        classes: vec![("style".into(), vec!["happy".into(), "sad".into()])],
-        ln_eps: 1e-5,
-        cond_every: true,
-    }
+    common::small_frame_config(v, 24)
 }
 
 /// A clip with continuity: the elbow and hip swing as sines (60 fps).

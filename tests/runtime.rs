@@ -9,7 +9,6 @@
 
 use candle_core::Device;
 use choreo::lm::engine::{Engine, Runtime};
-use choreo::lm::frame::FrameConfig;
 use choreo::lm::frame_runtime::FrameSession;
 use choreo::lm::manifest::DataInfo;
 use choreo::lm::model::MotionModel;
@@ -18,38 +17,13 @@ use choreo::motion::Labels;
 use choreo::tokenize::vocab::Vocabulary;
 use choreo::train::frame::FrameNet;
 use choreo::train::frame_export;
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 
-fn vocab() -> Vocabulary {
-    let mut labels: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    labels.insert(
-        "style".into(),
-        ["happy", "sad"].iter().map(|s| s.to_string()).collect(),
-    );
-    Vocabulary::new(labels)
-}
+mod common;
 
 /// A random-weight frame model (conditioning at every position), exported.
 fn exported(v: &Vocabulary) -> tempfile::TempDir {
-    let cfg = FrameConfig {
-        bins: v.bins,
-        slots: v.frame_len() - 1,
-        radius: 12,
-        d_emb: 8,
-        d_global: 32,
-        global_layers: 2,
-        global_heads: 4,
-        d_local: 32,
-        local_layers: 1,
-        local_heads: 4,
-        max_frames: 16,
-        vocab_size: v.size(),
-        cond_kinds: vec!["style".into()],
-        classes: vec![("style".into(), vec!["happy".into(), "sad".into()])],
-        ln_eps: 1e-5,
-        cond_every: true,
-    };
-    let net = FrameNet::new(cfg, &Device::Cpu).unwrap();
+    let net = FrameNet::new(common::small_frame_config(v, 16), &Device::Cpu).unwrap();
     let dir = tempfile::tempdir().unwrap();
     frame_export::export(
         &net,
@@ -138,7 +112,7 @@ fn missing_or_bad_libraries_are_clear_errors() {
 #[test]
 fn tract_and_ort_agree_on_the_frame_model() {
     let Some(ort) = ort_engine() else { return };
-    let v = vocab();
+    let v = common::style_vocab();
     let dir = exported(&v);
     let t = FrameSession::load_with(dir.path(), &Engine::tract()).unwrap();
     let o = FrameSession::load_with(dir.path(), &ort).unwrap();
@@ -170,7 +144,7 @@ fn tract_and_ort_agree_on_the_frame_model() {
 #[test]
 fn an_ort_stream_is_the_one_shot_output_for_one_seed() {
     let Some(ort) = ort_engine() else { return };
-    let v = vocab();
+    let v = common::style_vocab();
     let dir = exported(&v);
     let model = MotionModel::load_with(dir.path(), &ort).unwrap();
     let fl = v.frame_len();
