@@ -133,6 +133,31 @@ pub fn evaluate_labels(
     dev: &Device,
     keep_label: f64,
 ) -> Result<FrameEval> {
+    evaluate_window_starts(
+        net,
+        vocab,
+        val,
+        fl,
+        max_windows,
+        dev,
+        keep_label,
+        usize::MAX,
+    )
+}
+
+/// [`evaluate_labels`] on only the first `first` frames of each window:
+/// the frames with little or no history, where labels can matter most.
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_window_starts(
+    net: &FrameNet,
+    vocab: &Vocabulary,
+    val: &[Sequence],
+    fl: usize,
+    max_windows: usize,
+    dev: &Device,
+    keep_label: f64,
+    first: usize,
+) -> Result<FrameEval> {
     let c = &net.cfg;
     let values: Vec<Vec<u32>> = val.iter().map(|s| value_frames(&s.tokens, fl)).collect();
     let windows: Vec<(usize, usize, usize)> = values
@@ -141,7 +166,7 @@ pub fn evaluate_labels(
         .flat_map(|(i, v)| {
             data::cuts(v.len() / c.slots, c.max_frames)
                 .into_iter()
-                .map(move |(st, len)| (i, st, len))
+                .map(move |(st, len)| (i, st, len.min(first)))
         })
         .collect();
     let windows = data::spread(windows, max_windows);
@@ -421,6 +446,8 @@ pub fn table(
             .collect();
         let ev = evaluate(net, vocab, &val, fl, usize::MAX, &dev)?;
         let unlabelled = evaluate_labels(net, vocab, &val, fl, usize::MAX, &dev, 0.0)?;
+        let start = |keep| evaluate_window_starts(net, vocab, &val, fl, usize::MAX, &dev, keep, 10);
+        let (start_l, start_u) = (start(1.0)?, start(0.0)?);
         let val_windows = data::context_windows(&val, fl, net.cfg.max_frames);
         let classes: Vec<serde_json::Value> = net
             .cfg
@@ -456,6 +483,8 @@ pub fn table(
             "ratio_to_delta": ev.bits_per_frame / delta,
             "unlabelled_bits_per_frame": unlabelled.bits_per_frame,
             "label_bits_per_frame": unlabelled.bits_per_frame - ev.bits_per_frame,
+            "first10_bits_per_frame": start_l.bits_per_frame,
+            "first10_label_bits_per_frame": start_u.bits_per_frame - start_l.bits_per_frame,
             "classification": classes,
         }));
     }
