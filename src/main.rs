@@ -1656,6 +1656,7 @@ fn bench_model(
     // (slot) step, each timed alone; the window forward is the global pass
     // over a whole context, as classification runs it.
     let mut steps = serde_json::Value::Null;
+    let mut local_p50 = None;
     if let MotionModel::Frame(s) = &model {
         let n = (repeats * 50).max(200);
         let (mut g, mut l) = s.time_steps(150, n)?;
@@ -1669,15 +1670,12 @@ fn bench_model(
         let per = t1.elapsed().as_secs_f64() / reps as f64;
         g.sort_by(f64::total_cmp);
         l.sort_by(f64::total_cmp);
+        local_p50 = Some(cli::percentile(&l, 0.5));
         steps = serde_json::json!({
-            "global_step_ms_p50": g[g.len() / 2],
-            "local_step_ms_p50": l[l.len() / 2],
-            "window_frames": s.config().max_frames,
-            "window_forward_ms": per * 1e3,
+            "global_step_ms_p50": cli::percentile(&g, 0.5),
+            "local_step_ms_p50": local_p50,
         });
-        if window.is_null() {
-            window = serde_json::json!({"window_frames": s.config().max_frames, "window_forward_ms": per * 1e3});
-        }
+        window = serde_json::json!({"window_frames": s.config().max_frames, "window_forward_ms": per * 1e3});
     }
     // Streaming: per-frame latency over `frames` frames (window slides).
     let mut g = model.generator(
@@ -1703,14 +1701,11 @@ fn bench_model(
     let total = t2.elapsed().as_secs_f64();
     let allocs = (choreo_alloc::count() - allocs0) as f64 / frames as f64;
     lat.sort_by(f64::total_cmp);
-    let q = |p: f64| lat[((lat.len() as f64 - 1.0) * p).round() as usize];
+    let q = |p: f64| cli::percentile(&lat, p);
     // The decode step: one sequential network step. For the frame model
     // that is a local (slot) step; the flat model's figure is a frame over
     // its 43 tokens.
-    let decode = match (&model, steps.get("local_step_ms_p50")) {
-        (MotionModel::Frame(_), Some(x)) => x.as_f64().unwrap_or(f64::NAN),
-        _ => q(0.5) / v.frame_len() as f64,
-    };
+    let decode = local_p50.unwrap_or(q(0.5) / v.frame_len() as f64);
     let out = serde_json::json!({
         "model": dir.display().to_string(),
         "kind": model.kind(),

@@ -107,17 +107,7 @@ fn trained(v: &Vocabulary, c: &data::Corpus, steps: usize) -> FrameNet {
 }
 
 fn export(net: &FrameNet, v: &Vocabulary) -> tempfile::TempDir {
-    let dir = tempfile::tempdir().unwrap();
-    frame_export::export(
-        net,
-        v,
-        DataInfo::default(),
-        BTreeMap::new(),
-        serde_json::json!({}),
-        dir.path(),
-    )
-    .unwrap();
-    dir
+    common::export_frame(net, v)
 }
 
 #[test]

@@ -10,31 +10,23 @@
 use candle_core::Device;
 use choreo::lm::engine::{Engine, Runtime};
 use choreo::lm::frame_runtime::FrameSession;
-use choreo::lm::manifest::DataInfo;
 use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use choreo::motion::Labels;
 use choreo::tokenize::vocab::Vocabulary;
 use choreo::train::frame::FrameNet;
-use choreo::train::frame_export;
-use std::collections::BTreeMap;
 
 mod common;
 
-/// A random-weight frame model (conditioning at every position), exported.
+/// A random-weight frame model, exported; its per-frame label path
+/// (`g_cond_all`, zero when fresh) is made random too, so the label input
+/// is compared as well.
 fn exported(v: &Vocabulary) -> tempfile::TempDir {
     let net = FrameNet::new(common::small_frame_config(v, 16), &Device::Cpu).unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    frame_export::export(
-        &net,
-        v,
-        DataInfo::default(),
-        BTreeMap::new(),
-        serde_json::json!({}),
-        dir.path(),
-    )
-    .unwrap();
-    dir
+    let w = net.params.w("g_cond_all");
+    let r = candle_core::Tensor::randn(0f32, 0.5, w.dims(), &Device::Cpu).unwrap();
+    net.params["g_cond_all"].set(&r).unwrap();
+    common::export_frame(&net, v)
 }
 
 /// The onnxruntime library: ORT_DYLIB_PATH, else the pip wheel's.

@@ -22,10 +22,8 @@ fn rt(e: impl std::fmt::Display) -> LmError {
 }
 
 /// Which runtime runs the graphs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Runtime {
-    #[default]
     Tract,
     Ort,
 }
@@ -65,15 +63,6 @@ impl Outputs {
     pub fn data(&self, i: usize) -> &[f32] {
         &self.0[i].1
     }
-    pub fn shape(&self, i: usize) -> &[usize] {
-        &self.0[i].0
-    }
-    pub fn len(&self) -> usize {
-        self.0.len()
-    }
-    pub fn is_empty(&self) -> bool {
-        self.0.is_empty()
-    }
     fn set(&mut self, i: usize, shape: &[usize], data: &[f32]) {
         if self.0.len() <= i {
             self.0.resize_with(i + 1, Default::default);
@@ -95,7 +84,10 @@ pub struct Cache {
     heads: usize,
     cap: usize,
     dh: usize,
-    pub len: usize,
+    len: usize,
+    /// The attention bias over `cap + 1` keys, kept in step with `len`: 0
+    /// over the filled rows and the new position (last), −1e9 elsewhere.
+    bias: Vec<f32>,
 }
 
 impl Cache {
@@ -108,22 +100,33 @@ impl Cache {
             cap,
             dh,
             len: 0,
+            bias: (0..=cap)
+                .map(|i| if i == cap { 0.0 } else { -1e9 })
+                .collect(),
         }
     }
 
-    /// An attention bias over `cap + 1` keys: 0 over the filled rows and
+    /// Positions held.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The attention bias over `cap + 1` keys: 0 over the filled rows and
     /// the new position (last), −1e9 elsewhere.
-    pub fn bias(&self) -> Vec<f32> {
-        let mut b = vec![-1e9f32; self.cap + 1];
-        for x in b.iter_mut().take(self.len) {
-            *x = 0.0;
-        }
-        b[self.cap] = 0.0;
-        b
+    pub fn bias(&self) -> &[f32] {
+        &self.bias
     }
 
-    pub fn cap(&self) -> usize {
-        self.cap
+    /// Forgets the newest position (its rows are masked, then overwritten).
+    pub fn pop(&mut self) {
+        if self.len > 0 {
+            self.len -= 1;
+            self.bias[self.len] = -1e9;
+        }
     }
 
     #[cfg_attr(not(feature = "onnxruntime"), allow(dead_code))]
@@ -158,6 +161,7 @@ impl Cache {
                 }
             }
         }
+        self.bias[p] = 0.0;
         self.len += 1;
         Ok(())
     }
@@ -167,7 +171,6 @@ impl Cache {
 pub trait Graph: Send + Sync {
     /// A fresh run state (one per generator or request; reused per step).
     fn spawn(&self) -> Result<Box<dyn GraphState>, LmError>;
-    fn runtime(&self) -> Runtime;
 }
 
 /// A graph's run state.
@@ -206,12 +209,6 @@ pub struct Engine {
     runtime: Runtime,
     #[cfg(feature = "onnxruntime")]
     ort: Option<Arc<ort_rt::OrtEnv>>,
-}
-
-impl Default for Engine {
-    fn default() -> Engine {
-        Engine::tract()
-    }
 }
 
 impl std::fmt::Debug for Engine {
@@ -350,9 +347,6 @@ impl Graph for TractGraph {
     fn spawn(&self) -> Result<Box<dyn GraphState>, LmError> {
         Ok(Box::new(TractState(self.0.spawn().map_err(rt)?)))
     }
-    fn runtime(&self) -> Runtime {
-        Runtime::Tract
-    }
 }
 
 struct TractState(TypedSimpleState);
@@ -397,7 +391,7 @@ impl GraphState for TractState {
 
 #[cfg(feature = "onnxruntime")]
 mod ort_rt {
-    use super::{rt, Cache, Graph, GraphSpec, GraphState, In, LmError, Outputs, Runtime};
+    use super::{rt, Cache, Graph, GraphSpec, GraphState, In, LmError, Outputs};
     use ort::session::Session;
     use ort::value::TensorRef;
     use std::path::Path;
@@ -504,9 +498,6 @@ mod ort_rt {
                 session: Some(s),
                 pool: self.pool.clone(),
             }))
-        }
-        fn runtime(&self) -> Runtime {
-            Runtime::Ort
         }
     }
 

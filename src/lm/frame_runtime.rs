@@ -122,14 +122,14 @@ impl FrameSession {
             ),
         };
         let bias = cache.bias();
-        let pos = [cache.len as i64];
+        let pos = [cache.len() as i64];
         let inputs = [
             In::I64(&[1, s], &val),
             In::I64(&[1, s], &chg),
             In::F32(&[1, c.vocab_size], cond),
             In::F32(&[1, 1], &[is_cond]),
             In::I64(&[1], &pos),
-            In::F32(&[1, bias.len()], &bias),
+            In::F32(&[1, bias.len()], bias),
         ];
         st.st.run(&inputs, Some(cache), &mut st.out)?;
         let nk = c.classes.len();
@@ -139,7 +139,8 @@ impl FrameSession {
         Ok((h, cls))
     }
 
-    /// One local step at slot `cache.len`: change and absolute logits.
+    /// One local step at slot `cache.len()`: change and absolute logits,
+    /// left in `st.out` (0: change, 1: absolute).
     fn local_step(
         &self,
         st: &mut Step,
@@ -148,21 +149,20 @@ impl FrameSession {
         inp: u32,
         vel: u32,
         prev: u32,
-    ) -> Result<(Vec<f32>, Vec<f32>), LmError> {
+    ) -> Result<(), LmError> {
         let c = self.config();
         let bias = cache.bias();
-        let ids = [inp as i64, vel as i64, prev as i64, cache.len as i64];
+        let ids = [inp as i64, vel as i64, prev as i64, cache.len() as i64];
         let inputs = [
             In::F32(&[1, c.d_global], ctx),
             In::I64(&[1], &ids[0..1]),
             In::I64(&[1], &ids[1..2]),
             In::I64(&[1], &ids[2..3]),
             In::I64(&[1], &ids[3..4]),
-            In::F32(&[1, bias.len()], &bias),
+            In::F32(&[1, bias.len()], bias),
         ];
         st.st.run(&inputs, Some(cache), &mut st.out)?;
-        cache.push(&st.out, 2)?;
-        Ok((st.out.data(0).to_vec(), st.out.data(1).to_vec()))
+        cache.push(&st.out, 2)
     }
 
     /// Step timings for `choreo bench model`: `repeats` global steps with
@@ -189,7 +189,7 @@ impl FrameSession {
                 .global_step(&mut gs, &mut cache, &cond, Some((&frame, Some(&frame))))?
                 .0;
             g.push(t.elapsed().as_secs_f64() * 1e3);
-            cache.len -= 1;
+            cache.pop();
         }
         let mut l = Vec::with_capacity(repeats);
         let mut local = self.new_local_cache();
@@ -201,7 +201,7 @@ impl FrameSession {
             let t = std::time::Instant::now();
             self.local_step(&mut ls, &mut local, &h, c.radius as u32, c.radius as u32, 0)?;
             l.push(t.elapsed().as_secs_f64() * 1e3);
-            local.len -= 1;
+            local.pop();
         }
         Ok((g, l))
     }
@@ -251,7 +251,8 @@ impl FrameSession {
             let (mut rels, mut abss) = (Vec::new(), Vec::new());
             let mut inp = c.start();
             for s in 0..c.slots {
-                let (r, a) = self.local_step(&mut ls, &mut local, &h, inp, vel[s], prev[s])?;
+                self.local_step(&mut ls, &mut local, &h, inp, vel[s], prev[s])?;
+                let (r, a) = (ls.out.data(0).to_vec(), ls.out.data(1).to_vec());
                 rels.extend(r);
                 abss.extend(a);
                 inp = c.change(p1.map(|p| p[s]), frame[s]);
@@ -462,8 +463,8 @@ impl FrameGenerator {
         let mut frame = Vec::with_capacity(fl);
         let mut inp = c.start();
         for s in 0..c.slots {
-            let (rel, abs) =
-                session.local_step(&mut self.lstate, &mut local, &self.h, inp, vel[s], prev[s])?;
+            session.local_step(&mut self.lstate, &mut local, &self.h, inp, vel[s], prev[s])?;
+            let out = &self.lstate.out;
             let tok = match forced[s] {
                 Some(t) if (t as usize) < c.bins => t,
                 Some(t) => {
@@ -473,7 +474,14 @@ impl FrameGenerator {
                         format!("token {t} is not a value token"),
                     ))
                 }
-                None => self.draw(c, &rel, &abs, p1.as_ref().map(|p| p[s])),
+                None => draw(
+                    &self.sampling,
+                    &mut self.rng,
+                    c,
+                    out.data(0),
+                    out.data(1),
+                    p1.as_ref().map(|p| p[s]),
+                ),
             };
             inp = c.change(p1.as_ref().map(|p| p[s]), tok);
             frame.push(tok);
@@ -489,7 +497,7 @@ impl FrameGenerator {
             let ready = self
                 .tracks
                 .iter()
-                .all(|t| t.next.as_ref().is_some_and(|n| n.len == 1 + keep));
+                .all(|t| t.next.as_ref().is_some_and(|n| n.len() == 1 + keep));
             if ready {
                 for t in &mut self.tracks {
                     t.cache = t.next.take().expect("checked");
@@ -525,25 +533,32 @@ impl FrameGenerator {
         self.produced += 1;
         Ok(frame)
     }
+}
 
-    /// A slot's token: a change from the previous frame's token (or an
-    /// escape to the absolute head, with the change window masked out);
-    /// the absolute head alone when there is no previous frame.
-    fn draw(&mut self, c: &FrameConfig, rel: &[f32], abs: &[f32], p1: Option<u32>) -> u32 {
-        let Some(p) = p1 else {
-            return self.sampling.draw(abs, &mut self.rng) as u32;
-        };
-        let k = self.sampling.draw(rel, &mut self.rng) as u32;
-        if k != c.esc() {
-            return (p as i64 + k as i64 - c.radius as i64).clamp(0, c.bins as i64 - 1) as u32;
-        }
-        let mut masked = abs.to_vec();
-        let r = c.radius as i64;
-        for (b, x) in masked.iter_mut().enumerate() {
-            if (b as i64 - p as i64).abs() <= r {
-                *x = f32::NEG_INFINITY;
-            }
-        }
-        self.sampling.draw(&masked, &mut self.rng) as u32
+/// A slot's token: a change from the previous frame's token (or an
+/// escape to the absolute head, with the change window masked out); the
+/// absolute head alone when there is no previous frame.
+fn draw(
+    sampling: &Sampling,
+    rng: &mut StdRng,
+    c: &FrameConfig,
+    rel: &[f32],
+    abs: &[f32],
+    p1: Option<u32>,
+) -> u32 {
+    let Some(p) = p1 else {
+        return sampling.draw(abs, rng) as u32;
+    };
+    let k = sampling.draw(rel, rng) as u32;
+    if k != c.esc() {
+        return (p as i64 + k as i64 - c.radius as i64).clamp(0, c.bins as i64 - 1) as u32;
     }
+    let mut masked = abs.to_vec();
+    let r = c.radius as i64;
+    for (b, x) in masked.iter_mut().enumerate() {
+        if (b as i64 - p as i64).abs() <= r {
+            *x = f32::NEG_INFINITY;
+        }
+    }
+    sampling.draw(&masked, rng) as u32
 }

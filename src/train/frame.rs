@@ -39,9 +39,12 @@ impl FrameNet {
         p.insert("g_in.b".into(), filled(&[dg], 0.0, dev)?);
         p.insert("g_cond".into(), normal(&[cfg.vocab_size, dg], 0.02, dev)?);
         if cfg.cond_every {
+            // Zero at the start: the per-frame label path begins silent, so
+            // a model warm-started from one without it (`--init-from`)
+            // resumes exactly where its parent ended.
             p.insert(
                 "g_cond_all".into(),
-                normal(&[cfg.vocab_size, dg], 0.02, dev)?,
+                filled(&[cfg.vocab_size, dg], 0.0, dev)?,
             );
         }
         p.insert(

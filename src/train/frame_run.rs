@@ -118,37 +118,16 @@ pub fn evaluate(
     max_windows: usize,
     dev: &Device,
 ) -> Result<FrameEval> {
-    evaluate_labels(net, vocab, val, fl, max_windows, dev, 1.0)
+    evaluate_with(net, vocab, val, fl, max_windows, dev, 1.0, usize::MAX)
 }
 
 /// [`evaluate`] with each label kept with probability `keep_label` (0 =
 /// every window unlabelled: the gap to 1 is how many bits a frame the
-/// labels are worth to the model).
-pub fn evaluate_labels(
-    net: &FrameNet,
-    vocab: &Vocabulary,
-    val: &[Sequence],
-    fl: usize,
-    max_windows: usize,
-    dev: &Device,
-    keep_label: f64,
-) -> Result<FrameEval> {
-    evaluate_window_starts(
-        net,
-        vocab,
-        val,
-        fl,
-        max_windows,
-        dev,
-        keep_label,
-        usize::MAX,
-    )
-}
-
-/// [`evaluate_labels`] on only the first `first` frames of each window:
-/// the frames with little or no history, where labels can matter most.
+/// labels are worth to the model), on only the first `first` frames of
+/// each window (the frames with little or no history; `usize::MAX` =
+/// whole windows).
 #[allow(clippy::too_many_arguments)]
-pub fn evaluate_window_starts(
+pub fn evaluate_with(
     net: &FrameNet,
     vocab: &Vocabulary,
     val: &[Sequence],
@@ -305,12 +284,6 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
         if let Some(from) = &run.init_from {
             let (_, t, file): (FrameState, _, _) = super::load_parts(from, &dev)?;
             let fresh = net.params.load_matching(&t, &file)?;
-            // A new conditioning path starts silent, so the warm-started
-            // model begins exactly where its parent ended.
-            if fresh.iter().any(|k| k == "g_cond_all") {
-                let w = net.params.w("g_cond_all");
-                net.params["g_cond_all"].set(&w.zeros_like()?)?;
-            }
             eprintln!(
                 "started from {}; fresh parameters: {}",
                 from.display(),
@@ -445,9 +418,9 @@ pub fn table(
             })
             .collect();
         let ev = evaluate(net, vocab, &val, fl, usize::MAX, &dev)?;
-        let unlabelled = evaluate_labels(net, vocab, &val, fl, usize::MAX, &dev, 0.0)?;
-        let start = |keep| evaluate_window_starts(net, vocab, &val, fl, usize::MAX, &dev, keep, 10);
-        let (start_l, start_u) = (start(1.0)?, start(0.0)?);
+        let with = |keep, first| evaluate_with(net, vocab, &val, fl, usize::MAX, &dev, keep, first);
+        let unlabelled = with(0.0, usize::MAX)?;
+        let (start_l, start_u) = (with(1.0, 10)?, with(0.0, 10)?);
         let val_windows = data::context_windows(&val, fl, net.cfg.max_frames);
         let classes: Vec<serde_json::Value> = net
             .cfg

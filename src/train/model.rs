@@ -174,8 +174,6 @@ impl Params {
             .collect()
     }
 
-    /// Replaces every parameter from named tensors, which must all be there
-    /// with their shapes; errors name `file` and the field.
     /// Like `load_tensors`, but a parameter the checkpoint lacks keeps its
     /// current value (a warm start into a larger configuration); returns
     /// those names. A shape mismatch is still an error.
@@ -184,33 +182,30 @@ impl Params {
         t: &BTreeMap<String, Tensor>,
         file: &str,
     ) -> anyhow::Result<Vec<String>> {
-        let present: BTreeMap<String, Tensor> = self
-            .0
-            .keys()
-            .filter_map(|k| t.get(k).map(|v| (k.clone(), v.clone())))
-            .collect();
-        let fresh = self
-            .0
-            .keys()
-            .filter(|k| !present.contains_key(*k))
-            .cloned()
-            .collect();
-        Params(
-            self.0
-                .iter()
-                .filter(|(k, _)| present.contains_key(*k))
-                .map(|(k, v)| (k.clone(), v.clone()))
-                .collect(),
-        )
-        .load_tensors(&present, file)?;
-        Ok(fresh)
+        self.load(t, file, true)
     }
 
+    /// Replaces every parameter from named tensors, which must all be there
+    /// with their shapes; errors name `file` and the field.
     pub fn load_tensors(&self, t: &BTreeMap<String, Tensor>, file: &str) -> anyhow::Result<()> {
+        self.load(t, file, false).map(|_| ())
+    }
+
+    fn load(
+        &self,
+        t: &BTreeMap<String, Tensor>,
+        file: &str,
+        allow_missing: bool,
+    ) -> anyhow::Result<Vec<String>> {
+        let mut missing = Vec::new();
         for (name, var) in &self.0 {
-            let src = t
-                .get(name)
-                .ok_or_else(|| anyhow::anyhow!("{file}: field `{name}`: missing"))?;
+            let Some(src) = t.get(name) else {
+                if allow_missing {
+                    missing.push(name.clone());
+                    continue;
+                }
+                anyhow::bail!("{file}: field `{name}`: missing");
+            };
             if src.dims() != var.dims() {
                 anyhow::bail!(
                     "{file}: field `{name}`: shape {:?}, the configuration wants {:?}",
@@ -220,7 +215,7 @@ impl Params {
             }
             var.set(&src.to_dtype(DType::F32)?)?;
         }
-        Ok(())
+        Ok(missing)
     }
 }
 

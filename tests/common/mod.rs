@@ -1,8 +1,11 @@
-//! Helpers shared by the model tests: a small vocabulary and a small frame
-//! model configuration.
+//! Helpers shared by the model tests: a small vocabulary, a small frame
+//! model configuration, and its export to a temporary folder.
 
 use choreo::lm::frame::FrameConfig;
+use choreo::lm::manifest::DataInfo;
 use choreo::tokenize::vocab::Vocabulary;
+use choreo::train::frame::FrameNet;
+use choreo::train::frame_export;
 use std::collections::{BTreeMap, BTreeSet};
 
 /// A vocabulary whose only label kind is `style` (happy, sad).
@@ -36,4 +39,20 @@ pub fn small_frame_config(v: &Vocabulary, max_frames: usize) -> FrameConfig {
         ln_eps: 1e-5,
         cond_every: true,
     }
+}
+
+/// Exports a frame model (both graphs and the manifest) to a fresh
+/// temporary folder.
+pub fn export_frame(net: &FrameNet, v: &Vocabulary) -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    frame_export::export(
+        net,
+        v,
+        DataInfo::default(),
+        BTreeMap::new(),
+        serde_json::json!({}),
+        dir.path(),
+    )
+    .unwrap();
+    dir
 }
