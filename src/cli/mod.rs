@@ -2,6 +2,7 @@
 //! `main.rs` and moves here piece by piece).
 
 pub mod bench_index;
+pub mod bench_model;
 pub mod eval_generate;
 
 use anyhow::{Context, Result};
