@@ -101,6 +101,24 @@ struct ReadArgs {
     /// e.g. 0.0254 for inches).
     #[arg(long, env = "CHOREO_BVH_SCALE")]
     bvh_scale: Option<f64>,
+    /// Keypoint layout of a `.npy` or keypoint `.json` from a video pose
+    /// estimator: h36m17 (MotionBERT, VideoPose3D) or mediapipe33.
+    #[arg(long)]
+    keypoints: Option<choreo::motion::keypoints::Layout>,
+    /// Frame rate of a file that carries none (keypoint `.npy`, SMPL
+    /// parameters from video); overrides a keypoint JSON's own.
+    #[arg(long)]
+    source_fps: Option<f64>,
+    /// The file's up axis (y, -y, z, -z, x, -x) where it is not the
+    /// format's own (keypoints: -y; WHAM world output: y).
+    #[arg(long, allow_hyphen_values = true)]
+    up: Option<choreo::motion::keypoints::Up>,
+    /// Keypoint confidence below which a frame is flagged and bridged.
+    #[arg(long)]
+    min_confidence: Option<f64>,
+    /// Keypoint smoothing before the solve: Gaussian σ in seconds (0 = off).
+    #[arg(long)]
+    smooth: Option<f64>,
 }
 
 impl ReadArgs {
@@ -109,6 +127,11 @@ impl ReadArgs {
             bvh: bvh::BvhReadOptions {
                 metres_per_unit: self.bvh_scale,
             },
+            keypoints: self.keypoints,
+            fps: self.source_fps,
+            up: self.up,
+            min_confidence: self.min_confidence,
+            smooth_s: self.smooth,
         }
     }
 }
@@ -178,8 +201,17 @@ enum Cmd {
         /// work after the files move (the store grows by their size).
         #[arg(long)]
         keep_files: bool,
+        /// The footage the (single) file was estimated from, a path or URL:
+        /// query hits then give the video time of each match.
+        #[arg(long)]
+        video: Option<String>,
+        /// Video time of the file's first frame, seconds.
+        #[arg(long, requires = "video", allow_hyphen_values = true)]
+        video_offset: Option<f64>,
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        read: ReadArgs,
     },
     /// The stored windows most like a segment of a motion file.
     Query {
@@ -273,6 +305,11 @@ enum Cmd {
     },
     /// Serve REST and gRPC (see README: API).
     Serve(choreo::server::ServeConfig),
+    /// Rehearsal footage: keypoint and SMPL test files made from real takes.
+    Footage {
+        #[command(subcommand)]
+        cmd: cli::footage::FootageCmd,
+    },
     /// Benchmarks whose figures go to bench/RESULTS.md.
     Bench {
         #[command(subcommand)]
@@ -366,6 +403,10 @@ enum BenchCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Ingest speed of keypoints from video: one long keypoint file (an
+    /// hour at 30 fps by default) made from real takes, read + IK alone and
+    /// ingested into a fresh store.
+    Footage(cli::footage::BenchArgs),
     /// Embedding throughput (windows/s) on the real windows of a corpus.
     Embed {
         #[arg(long)]
@@ -402,6 +443,10 @@ enum EvalCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Keypoints from video: IK accuracy per joint (clean and noisy
+    /// keypoints made from real takes, rest pose beside) and cross-modal
+    /// search recall (keypoint versions against the mocap, both ways).
+    Footage(cli::footage::EvalArgs),
     /// Thesis 000 Table 3.2 protocol on a corpus: every window a query,
     /// same-sequence neighbours excluded (or, --same-sequence allow, the
     /// thesis's own protocol), k = 10, majority vote, entropy (bans), and
@@ -633,13 +678,29 @@ fn run(cli: Cli) -> Result<()> {
             hop,
             label,
             keep_files,
+            video,
+            video_offset,
             json,
+            read,
         } => {
             let labels = parse_pairs("--label", &label)?.into_iter().collect();
+            if video.is_some() && (paths.len() != 1 || paths[0].is_dir()) {
+                bail!("--video links one file: give exactly one file to ingest with it");
+            }
+            if let Some(o) = video_offset {
+                if !o.is_finite() {
+                    bail!("--video-offset: {o} is not a number of seconds");
+                }
+            }
             let opts = IngestOptions {
                 hop,
                 extra_labels: labels,
                 keep_files,
+                read: read.options(),
+                video: video.map(|video| choreo::store::VideoLink {
+                    video,
+                    video_offset_s: video_offset.unwrap_or(0.0),
+                }),
                 ..Default::default()
             };
             runtime()?.block_on(ingest(paths, db, opts, json))
@@ -751,6 +812,13 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Bench {
             cmd: BenchCmd::Embed { data, dump },
         } => bench_embed(&data, dump.as_deref()),
+        Cmd::Bench {
+            cmd: BenchCmd::Footage(a),
+        } => cli::footage::bench(a),
+        Cmd::Eval {
+            cmd: EvalCmd::Footage(a),
+        } => cli::footage::eval(a),
+        Cmd::Footage { cmd } => cli::footage::run(cmd),
         Cmd::Bench {
             cmd:
                 BenchCmd::Model {
@@ -929,8 +997,12 @@ async fn query(db: PathBuf, req: QueryRequest, json: bool) -> Result<()> {
                 .filter(|(k, _)| *k != "corpus")
                 .map(|(k, v)| format!("{k}={v}"))
                 .collect();
+            let video = match (&h.video, h.video_time_s) {
+                (Some(v), Some(t)) => format!("  video {v} at {t:.2} s"),
+                _ => String::new(),
+            };
             println!(
-                "{:>4}  {:>8.4}  {:>8.2}  {}  {}",
+                "{:>4}  {:>8.4}  {:>8.2}  {}  {}{video}",
                 i + 1,
                 h.score,
                 h.start_s,
@@ -1206,6 +1278,7 @@ fn inspect(file: &std::path::Path, as_json: bool, read: &ReadArgs) -> Result<()>
         "skeleton": m.skeleton.kind,
         "duration_s": m.duration_s(),
         "labels": m.labels,
+        "footage": loaded.footage,
     });
     if as_json {
         println!("{v}");
@@ -1222,6 +1295,28 @@ fn inspect(file: &std::path::Path, as_json: bool, read: &ReadArgs) -> Result<()>
         if loaded.format == Format::Bvh {
             if let Some(l) = &loaded.bvh_layout {
                 println!("unit      {} m per file unit", l.metres_per_unit);
+            }
+        }
+        if let Some(f) = &loaded.footage {
+            println!("source    {} (up {})", f.layout, f.up);
+            if f.layout != "smpl" {
+                println!(
+                    "unit      {:.6} m per file unit (from bone lengths)",
+                    f.metres_per_unit
+                );
+                println!(
+                    "confidence {:.3} mean over good frames (threshold {})",
+                    f.mean_confidence, f.min_confidence
+                );
+            }
+            println!(
+                "flagged   {} of {} frames, bridged by SLERP, in {} gaps",
+                f.flagged_frames,
+                f.frames,
+                f.gaps.len()
+            );
+            if f.first_frame > 0 {
+                println!("video     first frame is video frame {}", f.first_frame);
             }
         }
     }

@@ -175,3 +175,10 @@ fn frame_model_runtime_agrees_with_onnxruntime() {
         "check_frame_onnxruntime.py failed:\n{text}"
     );
 }
+
+#[test]
+fn keypoints_and_ik_agree_with_numpy_fk() {
+    if python_with("numpy, scipy") {
+        run_script("check_keypoints.py", Some("aistpp"));
+    }
+}

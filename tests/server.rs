@@ -100,6 +100,7 @@ fn upload(name: &str, content: Vec<u8>) -> pb::MotionSource {
         source: Some(pb::motion_source::Source::File(pb::UploadedFile {
             name: name.into(),
             content,
+            ..Default::default()
         })),
     }
 }
@@ -511,6 +512,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         source: Some(pb::motion_source::Source::File(pb::UploadedFile {
             name: "gBR_sBM_cAll_d04_mBR2_ch08.pkl".into(),
             content: bytes.clone(),
+            ..Default::default()
         })),
     };
     let greq = pb::GenerateRequest {
@@ -802,6 +804,7 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
         .ingest_motion(pb::IngestRequest {
             motion: Some(file("take.bvh", bvh_text.clone().into_bytes())),
             labels: Default::default(),
+            ..Default::default()
         })
         .await
         .unwrap_err();
@@ -814,6 +817,7 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
                     bvh_text.clone().into_bytes(),
                 )),
                 labels: Default::default(),
+                ..Default::default()
             },
             TOKEN,
         ))
@@ -840,6 +844,7 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
                     source: Some(pb::motion_source::Source::Motion(inline)),
                 }),
                 labels: [("take".to_string(), "inline".to_string())].into(),
+                ..Default::default()
             },
             TOKEN,
         ))
@@ -1110,6 +1115,7 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
                     source: Some(pb::motion_source::Source::Motion(again)),
                 }),
                 labels: Default::default(),
+                ..Default::default()
             },
             TOKEN,
         ))

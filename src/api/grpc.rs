@@ -50,6 +50,14 @@ fn source(field: &str, s: Option<pb::MotionSource>) -> Result<MotionInput, ApiEr
             )?))
         }
         Some(pb::motion_source::Source::File(f)) => Ok(MotionInput::File {
+            read: super::read_options(
+                &format!("{field}.file"),
+                (!f.keypoints.is_empty()).then_some(f.keypoints.as_str()),
+                (f.fps != 0.0).then_some(f.fps),
+                (!f.up.is_empty()).then_some(f.up.as_str()),
+                (f.min_confidence != 0.0).then_some(f.min_confidence),
+                f.smooth_s_set.then_some(f.smooth_s),
+            )?,
             name: f.name,
             bytes: f.content,
         }),
@@ -287,6 +295,8 @@ impl Choreo for ChoreoGrpc {
                     start_s: h.start_s,
                     score: h.score,
                     labels: h.labels.into_iter().collect(),
+                    video: h.video.unwrap_or_default(),
+                    video_time_s: h.video_time_s.unwrap_or(0.0),
                 })
                 .collect(),
         }))
@@ -377,10 +387,18 @@ impl Choreo for ChoreoGrpc {
     ) -> Result<Response<pb::IngestResponse>, Status> {
         self.state.authorize_write(bearer(&req))?;
         let r = req.into_inner();
+        if r.video.is_empty() && r.video_offset_s != 0.0 {
+            return Err(ApiError::invalid("video_offset_s", "given without video").into());
+        }
+        let video = (!r.video.is_empty()).then(|| crate::store::VideoLink {
+            video: r.video,
+            video_offset_s: r.video_offset_s,
+        });
         let stored = super::ingest(
             &self.state,
             source("motion", r.motion)?,
             r.labels.into_iter().collect(),
+            video,
         )
         .await?;
         let merged_labels = stored
@@ -450,6 +468,8 @@ fn summary_pb(r: crate::store::MotionRow) -> pb::MotionSummary {
         joints: r.joints,
         skeleton: r.skeleton,
         duration_s: r.duration_s,
+        video_offset_s: r.video.as_ref().map_or(0.0, |v| v.video_offset_s),
+        video: r.video.map(|v| v.video).unwrap_or_default(),
     }
 }
 

@@ -26,6 +26,20 @@ pub struct FileJson {
     #[serde(default)]
     pub name: String,
     pub content_base64: String,
+    /// Keypoint layout of a `.npy` / keypoint `.json`: `h36m17` or `mediapipe33`.
+    #[serde(default)]
+    pub keypoints: Option<String>,
+    /// Frame rate of a file that carries none.
+    #[serde(default)]
+    pub fps: Option<f64>,
+    /// The file's up axis (`y`, `-y`, `z`, `-z`, `x`, `-x`).
+    #[serde(default)]
+    pub up: Option<String>,
+    #[serde(default)]
+    pub min_confidence: Option<f64>,
+    /// Keypoint smoothing before the solve (Gaussian σ, seconds; 0 = off).
+    #[serde(default)]
+    pub smooth_s: Option<f64>,
 }
 
 /// Exactly one of `motion` (inline), `file` (an upload, base64) or `id` (a
@@ -53,6 +67,14 @@ fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
                     ApiError::invalid(format!("{field}.file.content_base64"), e.to_string())
                 })?;
             Ok(MotionInput::File {
+                read: super::read_options(
+                    &format!("{field}.file"),
+                    f.keypoints.as_deref(),
+                    f.fps,
+                    f.up.as_deref(),
+                    f.min_confidence,
+                    f.smooth_s,
+                )?,
                 name: f.name,
                 bytes,
             })
@@ -286,9 +308,14 @@ async fn keyframes(
 }
 
 fn summary(r: &crate::store::MotionRow) -> serde_json::Value {
-    json!({"id": r.id, "source_path": r.source_path, "format": r.format, "fps": r.fps,
+    let mut v = json!({"id": r.id, "source_path": r.source_path, "format": r.format, "fps": r.fps,
            "frames": r.frames, "joints": r.joints, "skeleton": r.skeleton,
-           "duration_s": r.duration_s, "labels": r.labels})
+           "duration_s": r.duration_s, "labels": r.labels});
+    if let Some(link) = &r.video {
+        v["video"] = json!(link.video);
+        v["video_offset_s"] = json!(link.video_offset_s);
+    }
+    v
 }
 
 async fn list_motions(State(s): State<Arc<AppState>>) -> Result<Json<serde_json::Value>, ApiError> {
@@ -308,6 +335,12 @@ pub struct IngestBody {
     pub motion: Option<SourceJson>,
     #[serde(default)]
     pub labels: Labels,
+    /// The footage the motion was estimated from (path or URL).
+    #[serde(default)]
+    pub video: Option<String>,
+    /// Video time of the motion's first frame, seconds (default 0).
+    #[serde(default)]
+    pub video_offset_s: Option<f64>,
 }
 
 async fn ingest(
@@ -317,7 +350,14 @@ async fn ingest(
 ) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
     s.authorize_write(bearer(&headers))?;
     let b = body(b)?;
-    let stored = super::ingest(&s, source("motion", b.motion)?, b.labels).await?;
+    if b.video.is_none() && b.video_offset_s.is_some() {
+        return Err(ApiError::invalid("video_offset_s", "given without video"));
+    }
+    let video = b.video.map(|video| crate::store::VideoLink {
+        video,
+        video_offset_s: b.video_offset_s.unwrap_or(0.0),
+    });
+    let stored = super::ingest(&s, source("motion", b.motion)?, b.labels, video).await?;
     let status = match stored.stored {
         super::Stored::New { .. } => StatusCode::CREATED,
         super::Stored::Existing { .. } => StatusCode::OK,

@@ -27,7 +27,7 @@ use crate::service::keyframes::{
 use crate::service::query::{
     IngestOutcome, QueryError, QueryHit, QueryRequest, QuerySource, Searcher,
 };
-use crate::store::{MotionRow, Store};
+use crate::store::{MotionRow, Store, VideoLink};
 use std::sync::Arc;
 use tokio::sync::Semaphore;
 
@@ -162,6 +162,8 @@ pub enum MotionInput {
     File {
         name: String,
         bytes: Vec<u8>,
+        /// How to read it (keypoint layout, frame rate, up axis).
+        read: ReadOptions,
     },
     /// A stored motion, by id.
     Stored(i64),
@@ -275,14 +277,14 @@ impl AppState {
     pub async fn resolve(&self, field: &str, input: MotionInput) -> Result<Motion, ApiError> {
         let m = match input {
             MotionInput::Inline(m) => m,
-            MotionInput::File { name, bytes } => {
+            MotionInput::File { name, bytes, read } => {
                 if name.is_empty() {
                     return Err(ApiError::invalid(
                         format!("{field}.file.name"),
                         "an upload needs its file name (the extension gives the format)",
                     ));
                 }
-                read_bytes(&name, &bytes, &ReadOptions::default())
+                read_bytes(&name, &bytes, &read)
                     .map_err(|e| prefix(field, e.into()))?
                     .motion
             }
@@ -551,6 +553,81 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
+/// A video link as a request gives it: a path or URL of at most 2,048
+/// characters, and a finite offset.
+fn check_video(v: &VideoLink) -> Result<(), ApiError> {
+    if v.video.is_empty() || v.video.len() > 2048 || v.video.chars().any(char::is_control) {
+        return Err(ApiError::invalid(
+            "video",
+            "must be a path or URL of 1 to 2,048 characters without control characters",
+        ));
+    }
+    if !v.video_offset_s.is_finite() {
+        return Err(ApiError::invalid(
+            "video_offset_s",
+            "must be a finite number of seconds",
+        ));
+    }
+    Ok(())
+}
+
+/// Reader options from a request's file source (`field` prefixes the
+/// names in errors): a keypoint layout, frame rate, up axis and confidence
+/// threshold, each optional.
+pub fn read_options(
+    field: &str,
+    keypoints: Option<&str>,
+    fps: Option<f64>,
+    up: Option<&str>,
+    min_confidence: Option<f64>,
+    smooth_s: Option<f64>,
+) -> Result<ReadOptions, ApiError> {
+    let keypoints = keypoints
+        .map(|k| {
+            k.parse()
+                .map_err(|e: String| ApiError::invalid(format!("{field}.keypoints"), e))
+        })
+        .transpose()?;
+    let up = up
+        .map(|u| {
+            u.parse()
+                .map_err(|e: String| ApiError::invalid(format!("{field}.up"), e))
+        })
+        .transpose()?;
+    if let Some(f) = fps {
+        if !(f.is_finite() && f > 0.0 && f <= crate::motion::clip::MAX_FPS) {
+            return Err(ApiError::invalid(
+                format!("{field}.fps"),
+                format!("{f} is not a frame rate"),
+            ));
+        }
+    }
+    if let Some(c) = min_confidence {
+        if !(0.0..=1.0).contains(&c) {
+            return Err(ApiError::invalid(
+                format!("{field}.min_confidence"),
+                format!("{c} is not in [0, 1]"),
+            ));
+        }
+    }
+    if let Some(v) = smooth_s {
+        if !(0.0..=1.0).contains(&v) {
+            return Err(ApiError::invalid(
+                format!("{field}.smooth_s"),
+                format!("{v} is not in [0, 1] seconds"),
+            ));
+        }
+    }
+    Ok(ReadOptions {
+        keypoints,
+        fps,
+        up,
+        min_confidence,
+        smooth_s,
+        ..Default::default()
+    })
+}
+
 /// Store a motion (an upload in any supported format, or an inline motion,
 /// kept as choreo JSON) with `labels` added; the next query sees it.
 /// Idempotent by content hash: labels sent with content already stored are
@@ -559,8 +636,12 @@ pub async fn ingest(
     state: &AppState,
     input: MotionInput,
     labels: Labels,
+    video: Option<VideoLink>,
 ) -> Result<IngestOutcome, ApiError> {
-    let (name, bytes) = match input {
+    if let Some(v) = &video {
+        check_video(v)?;
+    }
+    let (name, bytes, read) = match input {
         MotionInput::Inline(m) => {
             let stem: String = m
                 .name
@@ -576,16 +657,17 @@ pub async fn ingest(
             (
                 format!("{}.json", if stem.is_empty() { "motion" } else { &stem }),
                 write_json(&m),
+                ReadOptions::default(),
             )
         }
-        MotionInput::File { name, bytes } => {
+        MotionInput::File { name, bytes, read } => {
             if name.is_empty() {
                 return Err(ApiError::invalid(
                     "motion.file.name",
                     "an upload needs its file name (the extension gives the format)",
                 ));
             }
-            (name, bytes)
+            (name, bytes, read)
         }
         MotionInput::Stored(_) => {
             return Err(ApiError::invalid(
@@ -597,6 +679,8 @@ pub async fn ingest(
     let opts = IngestOptions {
         extra_labels: labels,
         keep_files: true,
+        read,
+        video,
         ..Default::default()
     };
     let _permit = state
@@ -628,7 +712,7 @@ pub async fn export_bvh(state: &AppState, id: i64) -> Result<String, ApiError> {
     if row.format == "bvh" {
         return String::from_utf8(bytes).map_err(internal);
     }
-    let m = parse_source(id, name, bytes).await?;
+    let m = parse_source(id, name, bytes, row.read_options.clone()).await?;
     state
         .heavy("export", move || {
             Ok(write_bvh(&m, &BvhWriteOptions::default())?)

@@ -4,6 +4,7 @@
 pub mod bench_index;
 pub mod bench_model;
 pub mod eval_generate;
+pub mod footage;
 
 use anyhow::{Context, Result};
 

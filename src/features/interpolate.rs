@@ -423,6 +423,13 @@ fn build_objective(
     let n = x0.len();
     let (lo, hi) = opts.band;
     Ok(match opts.objective {
+        Embedding::Pose => {
+            return Err(MotionError::invalid(
+                "interpolate",
+                "objective",
+                "the pose embedding is for search; interpolation moves dct, stft or pca features",
+            ))
+        }
         Embedding::Dct => {
             let dct = Dct::new(n);
             let (lo_n, hi_n) = (scaled(lo, n), scaled(hi, n).max(scaled(lo, n) + 1).min(n));

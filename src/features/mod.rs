@@ -11,10 +11,14 @@
 //! - DCT: orthonormal DCT-II per channel, first 16 coefficients → 1,152.
 //! - PCA: 16 components fitted on the per-channel 128-sample series of the
 //!   indexed windows; each channel's series projected → 1,152.
+//! - Pose: joint positions relative to the pelvis, heading removed, first 16
+//!   DCT-II coefficients per coordinate → 624 ([`pose`]); the embedding
+//!   that finds motion estimated from video and the mocap it shows.
 
 pub mod interpolate;
 pub mod lda;
 pub mod pca;
+pub mod pose;
 pub mod project;
 
 use crate::motion::retarget::{retarget_to_smpl13, JointMap};
@@ -42,15 +46,25 @@ pub enum Embedding {
     Stft,
     Dct,
     Pca,
+    Pose,
 }
 
 impl Embedding {
+    /// The thesis's three spectral embeddings of the rotation channels.
     pub const ALL: [Embedding; 3] = [Embedding::Stft, Embedding::Dct, Embedding::Pca];
+    /// Every embedding the store keeps for a window.
+    pub const STORED: [Embedding; 4] = [
+        Embedding::Stft,
+        Embedding::Dct,
+        Embedding::Pca,
+        Embedding::Pose,
+    ];
     pub fn name(self) -> &'static str {
         match self {
             Embedding::Stft => "stft",
             Embedding::Dct => "dct",
             Embedding::Pca => "pca",
+            Embedding::Pose => "pose",
         }
     }
     pub fn parse(s: &str) -> Option<Embedding> {
@@ -58,6 +72,7 @@ impl Embedding {
             "stft" => Some(Embedding::Stft),
             "dct" => Some(Embedding::Dct),
             "pca" => Some(Embedding::Pca),
+            "pose" => Some(Embedding::Pose),
             _ => None,
         }
     }
@@ -189,6 +204,8 @@ pub struct Extractor {
     dct: Arc<dyn rustdct::TransformType2And3<f32>>,
     /// The first 16 orthonormal DCT-II functions as one blocked projection.
     dct16: Arc<project::Projection>,
+    /// The same functions, `[16][128]`.
+    dct_rows: Arc<Vec<f32>>,
 }
 
 impl Extractor {
@@ -223,6 +240,7 @@ impl Extractor {
             hann,
             dct,
             dct16: Arc::new(project::Projection::new(&rows, None)),
+            dct_rows: Arc::new(rows),
         })
     }
 
@@ -230,6 +248,7 @@ impl Extractor {
         match e {
             Embedding::Stft => self.stft.dim(),
             Embedding::Dct | Embedding::Pca => CHANNELS * COEFFS,
+            Embedding::Pose => pose::POSE_DIM,
         }
     }
 
@@ -274,6 +293,11 @@ impl Extractor {
         self.dct16.apply(win)
     }
 
+    /// The pose embedding ([`pose`]).
+    pub fn pose(&self, win: &[f32]) -> Vec<f32> {
+        pose::pose_embedding(win, &self.dct_rows)
+    }
+
     /// The embedding of one window. PCA needs a fitted model.
     pub fn embed(
         &self,
@@ -284,6 +308,7 @@ impl Extractor {
         match e {
             Embedding::Stft => Ok(self.stft(win)),
             Embedding::Dct => Ok(self.dct(win)),
+            Embedding::Pose => Ok(self.pose(win)),
             Embedding::Pca => {
                 let p = pca.ok_or_else(|| {
                     MotionError::invalid(

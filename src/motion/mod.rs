@@ -3,6 +3,7 @@
 
 pub mod clip;
 pub mod io;
+pub mod keypoints;
 pub mod labels;
 pub mod retarget;
 pub mod rotation;

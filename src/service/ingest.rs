@@ -10,7 +10,7 @@ use crate::features::{
 };
 use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::{Labels, Motion, MotionError};
-use crate::store::{MotionRow, NewMotion, NewWindow, Store, StoreError};
+use crate::store::{MotionRow, NewMotion, NewWindow, Store, StoreError, VideoLink};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
@@ -27,6 +27,9 @@ pub struct IngestOptions {
     /// Keep the file's bytes in the store (`motion_files`), so the motion
     /// can be read back without the file (always on for API uploads).
     pub keep_files: bool,
+    /// The footage the file was estimated from, and the video time of its
+    /// first row (a WHAM-style file's first `frame_ids` is added to it).
+    pub video: Option<VideoLink>,
 }
 
 impl Default for IngestOptions {
@@ -37,6 +40,7 @@ impl Default for IngestOptions {
             read: ReadOptions::default(),
             extra_labels: Labels::new(),
             keep_files: false,
+            video: None,
         }
     }
 }
@@ -108,10 +112,14 @@ pub fn prepare_with(
             NewWindow {
                 start_frame: s,
                 frames: WINDOW,
-                embeddings: [(Embedding::Stft, ex.stft(&w)), (Embedding::Dct, ex.dct(&w))]
-                    .into_iter()
-                    .chain(pca.map(|p| (Embedding::Pca, p.project_window(&w))))
-                    .collect(),
+                embeddings: [
+                    (Embedding::Stft, ex.stft(&w)),
+                    (Embedding::Dct, ex.dct(&w)),
+                    (Embedding::Pose, ex.pose(&w)),
+                ]
+                .into_iter()
+                .chain(pca.map(|p| (Embedding::Pca, p.project_window(&w))))
+                .collect(),
             }
         })
         .collect();
@@ -136,6 +144,15 @@ pub fn prepare_with(
                 .file_name()
                 .map_or_else(|| file.to_string(), |n| n.to_string_lossy().into_owned());
             (base, bytes)
+        }),
+        read_options: opts.read.clone(),
+        video: opts.video.clone().map(|v| VideoLink {
+            video_offset_s: v.video_offset_s
+                + loaded
+                    .footage
+                    .as_ref()
+                    .map_or(0.0, |f| f.first_frame as f64 / m.fps),
+            ..v
         }),
     })
 }
@@ -169,6 +186,7 @@ pub async fn ingest(
         progress(i + 1, files.len(), &name);
     }
     refresh_pca(store).await?;
+    backfill_pose(store).await?;
     Ok(report)
 }
 
@@ -282,18 +300,23 @@ pub async fn load_motion(store: &Store, id: i64) -> Result<Option<(MotionRow, Mo
     let Some((row, name, bytes)) = load_source(store, id).await? else {
         return Ok(None);
     };
-    let mut m = parse_source(id, name, bytes).await?;
+    let mut m = parse_source(id, name, bytes, row.read_options.clone()).await?;
     m.labels = row.labels.clone();
     Ok(Some((row, m)))
 }
 
-/// Parse source bytes on the blocking pool.
-pub async fn parse_source(id: i64, name: String, bytes: Vec<u8>) -> Result<Motion, LoadError> {
-    Ok(tokio::task::spawn_blocking(move || {
-        read_bytes(&name, &bytes, &ReadOptions::default()).map(|l| l.motion)
-    })
-    .await
-    .map_err(|e| LoadError::Gone(format!("motion {id}: worker failed: {e}")))??)
+/// Parse source bytes on the blocking pool, the way they were read at ingest.
+pub async fn parse_source(
+    id: i64,
+    name: String,
+    bytes: Vec<u8>,
+    read: ReadOptions,
+) -> Result<Motion, LoadError> {
+    Ok(
+        tokio::task::spawn_blocking(move || read_bytes(&name, &bytes, &read).map(|l| l.motion))
+            .await
+            .map_err(|e| LoadError::Gone(format!("motion {id}: worker failed: {e}")))??,
+    )
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -317,6 +340,44 @@ pub async fn refresh_pca(store: &Store) -> Result<Option<Pca>, StoreError> {
         }
     }
     Ok(refit_pca(store).await?.map(|(p, _)| p))
+}
+
+/// Give every stored window its pose embedding when some lack it (a store
+/// written before the pose embedding existed): all are computed again from
+/// the stored channels, in one transaction. Returns how many were written.
+pub async fn backfill_pose(store: &Store) -> Result<usize, StoreError> {
+    let (_, nwin) = store.counts().await?;
+    if store.count_embeddings(Embedding::Pose).await? == nwin {
+        return Ok(0);
+    }
+    let fp = store.windows_fingerprint().await?;
+    let channels = store.all_channels().await?;
+    let windows = store.windows().await?;
+    let rows = tokio::task::spawn_blocking(move || {
+        let ex = Extractor::new(StftParams::default()).expect("default STFT");
+        let by_motion: std::collections::HashMap<i64, &Vec<[f32; 72]>> =
+            channels.iter().map(|(id, c)| (*id, c)).collect();
+        windows
+            .iter()
+            .filter_map(|(id, w)| {
+                by_motion
+                    .get(&w.motion_id)
+                    .map(|ch| (*id, ex.pose(&window(ch, w.start_frame as usize))))
+            })
+            .collect::<Vec<_>>()
+    })
+    .await
+    .map_err(|e| StoreError::Corrupt {
+        path: store.path().display().to_string(),
+        field: "pose".into(),
+        reason: format!("worker failed: {e}"),
+    })?;
+    let n = rows.len();
+    tracing::info!("pose embeddings computed for {n} stored windows");
+    store
+        .replace_embeddings(Embedding::Pose, &rows, "pose", "{\"version\":1}", fp)
+        .await?;
+    Ok(n)
 }
 
 /// The stored PCA basis, if any.

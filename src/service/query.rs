@@ -84,6 +84,12 @@ pub struct QueryHit {
     /// Cosine similarity, or Euclidean distance.
     pub score: f32,
     pub labels: Labels,
+    /// The footage the hit's motion came from, and the video time of the
+    /// matched window's start (absent for motions without footage).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub video: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub video_time_s: Option<f64>,
 }
 
 type Key = (Embedding, Metric, bool);
@@ -146,6 +152,7 @@ impl Searcher {
     /// Read the store's window map, motions and PCA basis (refitted first
     /// when [`ingest::pca_due`]).
     pub async fn open(store: Store, params: HnswParams) -> Result<Searcher, QueryError> {
+        ingest::backfill_pose(&store).await?;
         let pca = if ingest::pca_due(&store).await? {
             ingest::refit_pca(&store).await?.map(|(p, _)| p)
         } else {
@@ -529,6 +536,11 @@ impl Searcher {
                     start_s: w.start_frame as f64 / FEATURE_FPS,
                     score: req.metric.score(d),
                     labels: m.labels.clone(),
+                    video: m.video.as_ref().map(|v| v.video.clone()),
+                    video_time_s: m
+                        .video
+                        .as_ref()
+                        .map(|v| v.video_offset_s + w.start_frame as f64 / FEATURE_FPS),
                 })
             })
             .collect()

@@ -4,6 +4,7 @@
 //! `meta.generation`, which on-disk indexes compare against.
 
 use crate::features::{Embedding, CHANNELS};
+use crate::motion::io::ReadOptions;
 use crate::motion::Labels;
 use sqlx::sqlite::{
     SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteSynchronous,
@@ -49,6 +50,20 @@ pub struct MotionRow {
     pub skeleton: String,
     pub duration_s: f64,
     pub labels: Labels,
+    /// How the source file is read back (defaults when empty).
+    #[serde(skip_serializing_if = "ReadOptions::is_default")]
+    pub read_options: ReadOptions,
+    #[serde(flatten)]
+    pub video: Option<VideoLink>,
+}
+
+/// The footage a motion came from.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct VideoLink {
+    /// A path or URL, as given at ingest.
+    pub video: String,
+    /// Video time of the motion's first frame, seconds.
+    pub video_offset_s: f64,
 }
 
 /// A motion to insert, with its windows and their embeddings.
@@ -67,6 +82,8 @@ pub struct NewMotion {
     pub windows: Vec<NewWindow>,
     /// The source file (name, bytes), kept in the store when given.
     pub file: Option<(String, Vec<u8>)>,
+    pub read_options: ReadOptions,
+    pub video: Option<VideoLink>,
 }
 
 pub struct NewWindow {
@@ -201,8 +218,8 @@ impl Store {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
         let labels = serde_json::to_string(&m.labels).unwrap_or_else(|_| "{}".into());
         let id: i64 = sqlx::query_scalar(
-            "INSERT INTO motions (id, source_path, content_hash, format, fps, frames, joints, skeleton, duration_s, labels)
-             VALUES ((SELECT last + 1 FROM motion_id_seq), ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+            "INSERT INTO motions (id, source_path, content_hash, format, fps, frames, joints, skeleton, duration_s, labels, read_options, video, video_offset_s)
+             VALUES ((SELECT last + 1 FROM motion_id_seq), ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
         )
         .bind(&m.source_path)
         .bind(&m.content_hash)
@@ -213,6 +230,12 @@ impl Store {
         .bind(&m.skeleton)
         .bind(m.duration_s)
         .bind(labels)
+        .bind(
+            (!m.read_options.is_default())
+                .then(|| serde_json::to_string(&m.read_options).expect("read options serialise")),
+        )
+        .bind(m.video.as_ref().map(|v| v.video.clone()))
+        .bind(m.video.as_ref().map(|v| v.video_offset_s))
         .fetch_one(&mut *tx)
         .await
         .map_err(|e| self.db(e))?;
@@ -328,6 +351,27 @@ impl Store {
             duration_s: r.try_get("duration_s").map_err(|e| self.db(e))?,
             labels: serde_json::from_str(&labels)
                 .map_err(|e| self.corrupt("motions.labels", e.to_string()))?,
+            read_options: match r
+                .try_get::<Option<String>, _>("read_options")
+                .map_err(|e| self.db(e))?
+            {
+                None => ReadOptions::default(),
+                Some(j) => serde_json::from_str(&j)
+                    .map_err(|e| self.corrupt("motions.read_options", e.to_string()))?,
+            },
+            video: match r
+                .try_get::<Option<String>, _>("video")
+                .map_err(|e| self.db(e))?
+            {
+                None => None,
+                Some(video) => Some(VideoLink {
+                    video,
+                    video_offset_s: r
+                        .try_get::<Option<f64>, _>("video_offset_s")
+                        .map_err(|e| self.db(e))?
+                        .unwrap_or(0.0),
+                }),
+            },
         })
     }
 

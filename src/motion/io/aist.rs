@@ -26,6 +26,11 @@ fn array<'a>(
 /// Parse an AIST++ pickle's bytes; `file` names it in errors and labels.
 pub fn read_aist_pickle(file: &str, bytes: &[u8]) -> Result<Motion, MotionError> {
     let root = pickle::load(bytes).map_err(|r| MotionError::invalid(file, "pickle", r))?;
+    read_aist_value(file, &root)
+}
+
+/// An AIST++ motion from a parsed pickle.
+pub fn read_aist_value(file: &str, root: &Value) -> Result<Motion, MotionError> {
     let d = root
         .as_dict()
         .ok_or_else(|| MotionError::invalid(file, "pickle", "top-level object is not a dict"))?;

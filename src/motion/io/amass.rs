@@ -23,7 +23,7 @@ fn z_up_to_y_up() -> Quat {
     axis_angle_to_quat([-std::f64::consts::FRAC_PI_2, 0.0, 0.0])
 }
 
-fn entry(
+pub(crate) fn entry(
     file: &str,
     zip: &mut zip::ZipArchive<Cursor<&[u8]>>,
     names: &[&str],
@@ -172,18 +172,23 @@ pub fn write_amass_npz(m: &Motion) -> Result<Vec<u8>, MotionError> {
             },
         ),
     ];
+    write_npz(&m.name, &arrays)
+}
+
+/// A zip of `.npy` arrays (deflated).
+pub(crate) fn write_npz(name: &str, arrays: &[(&str, NdArray)]) -> Result<Vec<u8>, MotionError> {
     let mut out = Cursor::new(Vec::new());
     {
         let mut zw = zip::ZipWriter::new(&mut out);
         let opts = zip::write::SimpleFileOptions::default()
             .compression_method(zip::CompressionMethod::Deflated);
-        for (name, a) in arrays {
-            zw.start_file(name, opts)
+        for (entry, a) in arrays {
+            zw.start_file(*entry, opts)
                 .and_then(|_| zw.write_all(&a.to_npy(false)).map_err(Into::into))
-                .map_err(|e| MotionError::invalid(&m.name, "npz", e.to_string()))?;
+                .map_err(|e| MotionError::invalid(name, "npz", e.to_string()))?;
         }
         zw.finish()
-            .map_err(|e| MotionError::invalid(&m.name, "npz", e.to_string()))?;
+            .map_err(|e| MotionError::invalid(name, "npz", e.to_string()))?;
     }
     Ok(out.into_inner())
 }

@@ -74,10 +74,18 @@ impl BvhLayout {
     }
 }
 
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct BvhReadOptions {
     /// Metres per file unit; `None` detects it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub metres_per_unit: Option<f64>,
+}
+
+impl BvhReadOptions {
+    pub fn is_default(&self) -> bool {
+        self.metres_per_unit.is_none()
+    }
 }
 
 /// Metres per unit of the CMU mocap BVH conversions (ASF `length 0.45`

@@ -8,11 +8,14 @@ pub mod amass;
 pub mod bvh;
 pub mod gltf;
 pub mod json;
+pub mod keypoints;
 pub mod npy;
 pub mod pickle;
+pub mod smpl_params;
 
+use super::keypoints::{FootageReport, Layout, SolveOptions, Up};
 use super::{Motion, MotionError};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Largest file read (BVH text of 10 M frames would be far below this).
@@ -28,6 +31,11 @@ pub enum Format {
     Bvh,
     /// choreo's JSON motion ([`json::MotionJson`]).
     Json,
+    /// Keypoints from a video pose estimator (`.npy`, or keypoint `.json`
+    /// when a layout is given), solved onto SMPL by inverse kinematics.
+    Keypoints,
+    /// SMPL parameters from a video estimator (WHAM-style `.npz` / `.pkl`).
+    Smpl,
 }
 
 impl Format {
@@ -37,6 +45,8 @@ impl Format {
             Format::Amass => "amass",
             Format::Bvh => "bvh",
             Format::Json => "json",
+            Format::Keypoints => "keypoints",
+            Format::Smpl => "smpl",
         }
     }
 
@@ -45,7 +55,9 @@ impl Format {
     /// as one).
     pub fn detect(path: &str, _bytes: &[u8]) -> Option<Format> {
         let lower = path.to_ascii_lowercase();
-        if lower.ends_with(".pkl") || lower.ends_with(".pickle") {
+        if lower.ends_with(".npy") {
+            Some(Format::Keypoints)
+        } else if lower.ends_with(".pkl") || lower.ends_with(".pickle") {
             Some(Format::Aist)
         } else if lower.ends_with(".npz") {
             Some(Format::Amass)
@@ -59,9 +71,35 @@ impl Format {
     }
 }
 
-#[derive(Clone, Debug, Default)]
+/// How to read a file beyond what its name says. Stored with every motion
+/// (as JSON) so that the store reads it back the same way.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ReadOptions {
+    #[serde(default, skip_serializing_if = "bvh::BvhReadOptions::is_default")]
     pub bvh: bvh::BvhReadOptions,
+    /// The keypoint layout of a `.npy` or keypoint `.json`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keypoints: Option<Layout>,
+    /// Frame rate of a file that carries none (keypoints, SMPL from video);
+    /// overrides a keypoint JSON's own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fps: Option<f64>,
+    /// The file's up axis, where it is not the format's own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub up: Option<Up>,
+    /// Keypoint confidence below which a frame is flagged and bridged.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_confidence: Option<f64>,
+    /// Keypoint smoothing before the solve (Gaussian σ, seconds; 0 = off).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub smooth_s: Option<f64>,
+}
+
+impl ReadOptions {
+    pub fn is_default(&self) -> bool {
+        *self == ReadOptions::default()
+    }
 }
 
 /// A motion as read, with what the format itself said about it.
@@ -70,32 +108,106 @@ pub struct Loaded {
     pub format: Format,
     /// The channel layout, for a BVH input (so writing can keep it).
     pub bvh_layout: Option<bvh::BvhLayout>,
+    /// For motions from video (keypoints, SMPL parameters): what the solver
+    /// found (flagged frames, scale, confidence).
+    pub footage: Option<FootageReport>,
+}
+
+impl Loaded {
+    fn plain(motion: Motion, format: Format) -> Self {
+        Loaded {
+            motion,
+            format,
+            bvh_layout: None,
+            footage: None,
+        }
+    }
+    fn footage(format: Format, (motion, report): (Motion, FootageReport)) -> Self {
+        Loaded {
+            motion,
+            format,
+            bvh_layout: None,
+            footage: Some(report),
+        }
+    }
+}
+
+fn keypoint_motion(
+    file: &str,
+    kp: super::keypoints::Keypoints,
+    opts: &ReadOptions,
+) -> Result<Loaded, MotionError> {
+    let defaults = SolveOptions::new(kp.layout);
+    let so = SolveOptions {
+        up: opts.up.unwrap_or(defaults.up),
+        min_confidence: opts.min_confidence.unwrap_or(defaults.min_confidence),
+        smooth_s: opts.smooth_s.unwrap_or(defaults.smooth_s),
+        ..defaults
+    };
+    let (mut m, report) = super::keypoints::solve(file, &kp, &so)?;
+    m.labels = super::labels::from_name(file);
+    m.labels
+        .entry("corpus".into())
+        .or_insert_with(|| "video".into());
+    Ok(Loaded::footage(Format::Keypoints, (m, report)))
 }
 
 /// Parse a file's bytes; `file` names it in errors and gives the labels.
 pub fn read_bytes(file: &str, bytes: &[u8], opts: &ReadOptions) -> Result<Loaded, MotionError> {
-    let format = Format::detect(file, bytes).ok_or_else(|| MotionError::Unsupported {
+    let mut format = Format::detect(file, bytes).ok_or_else(|| MotionError::Unsupported {
         file: file.to_string(),
         reason:
-            "the name's extension gives the format, and this one is not known (expected .pkl AIST++, .npz AMASS, .bvh or choreo .json)"
+            "the name's extension gives the format, and this one is not known (expected .pkl AIST++ or SMPL parameters, .npz AMASS or SMPL parameters, .bvh, choreo .json, or keypoints .npy/.json)"
                 .into(),
     })?;
+    if format == Format::Json && opts.keypoints.is_some() {
+        format = Format::Keypoints;
+    }
+    if format != Format::Keypoints && opts.keypoints.is_some() {
+        return Err(MotionError::invalid(
+            file,
+            "keypoints",
+            "a keypoint layout applies to .npy and keypoint .json files only",
+        ));
+    }
     match format {
-        Format::Aist => Ok(Loaded {
-            motion: aist::read_aist_pickle(file, bytes)?,
-            format,
-            bvh_layout: None,
-        }),
-        Format::Amass => Ok(Loaded {
-            motion: amass::read_amass_npz(file, bytes)?,
-            format,
-            bvh_layout: None,
-        }),
-        Format::Json => Ok(Loaded {
-            motion: json::read_json(file, bytes)?,
-            format,
-            bvh_layout: None,
-        }),
+        Format::Keypoints => {
+            let layout = opts.keypoints.ok_or_else(|| {
+                MotionError::invalid(
+                    file,
+                    "keypoints",
+                    "missing: a .npy holds keypoints; name the layout (--keypoints h36m17|mediapipe33, API `keypoints`)",
+                )
+            })?;
+            let lower = file.to_ascii_lowercase();
+            let kp = if lower.ends_with(".npy") {
+                keypoints::read_npy(file, bytes, layout, opts.fps)?
+            } else {
+                keypoints::read_json(file, bytes, layout, opts.fps)?
+            };
+            keypoint_motion(file, kp, opts)
+        }
+        Format::Aist => {
+            let root = smpl_params::load_pickle(file, bytes)?;
+            if smpl_params::is_smpl_params(&root) {
+                smpl_params::read_pickle_value(file, &root, opts.fps, opts.up)
+                    .map(|r| Loaded::footage(Format::Smpl, r))
+            } else {
+                Ok(Loaded::plain(aist::read_aist_value(file, &root)?, format))
+            }
+        }
+        Format::Amass | Format::Smpl => {
+            if npz_has_any(bytes, &smpl_params::POSE_KEYS) && !npz_has_any(bytes, &["poses"]) {
+                smpl_params::read_npz(file, bytes, opts.fps, opts.up)
+                    .map(|r| Loaded::footage(Format::Smpl, r))
+            } else {
+                Ok(Loaded::plain(
+                    amass::read_amass_npz(file, bytes)?,
+                    Format::Amass,
+                ))
+            }
+        }
+        Format::Json => Ok(Loaded::plain(json::read_json(file, bytes)?, format)),
         Format::Bvh => {
             let text = std::str::from_utf8(bytes).map_err(|e| {
                 MotionError::invalid(file, "text", format!("not UTF-8/ASCII text ({e})"))
@@ -105,9 +217,18 @@ pub fn read_bytes(file: &str, bytes: &[u8], opts: &ReadOptions) -> Result<Loaded
                 motion: b.motion,
                 format,
                 bvh_layout: Some(b.layout),
+                footage: None,
             })
         }
     }
+}
+
+/// Whether an `.npz` archive holds an array under any of `keys`.
+fn npz_has_any(bytes: &[u8], keys: &[&str]) -> bool {
+    zip::ZipArchive::new(std::io::Cursor::new(bytes)).is_ok_and(|z| {
+        z.file_names()
+            .any(|n| keys.iter().any(|k| n.strip_suffix(".npy") == Some(*k)))
+    })
 }
 
 pub fn read_path(path: &Path, opts: &ReadOptions) -> Result<Loaded, MotionError> {
