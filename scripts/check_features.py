@@ -4,6 +4,9 @@
 - the window itself equals the pickle's smpl_poses (60 fps, channel-major);
 - STFT magnitudes == |scipy.signal.stft(hann 16, hop 8, no padding)| * sum(window);
 - DCT == scipy.fft.dct(type 2, norm='ortho')[:, :16];
+- pose == scipy forward kinematics of the window on the SMPL neutral body:
+  13 joints relative to the pelvis, turned about y so that the pelvis faces
+  +z at frame 64, then DCT-II ortho, first 16 per coordinate;
 - PCA fitted on every window (hop 32) of the 4 samples == numpy's covariance
   eigendecomposition: explained variance, components (up to sign), projection.
 
@@ -12,6 +15,7 @@ Usage: check_features.py PATH/TO/choreo DATA_DIR
 import json, os, pickle, subprocess, sys
 import numpy as np
 import scipy.fft, scipy.signal
+from scipy.spatial.transform import Rotation as R
 
 exe, data = sys.argv[1], sys.argv[2]
 mdir = os.path.join(data, "aistpp/motions")
@@ -39,6 +43,24 @@ check("STFT magnitudes", np.asarray(out["stft"]).reshape(72, 15, 9), ref_stft.tr
 ref_dct = scipy.fft.dct(x, type=2, norm="ortho", axis=-1)
 check("DCT-II ortho, first 16", np.asarray(out["dct"]).reshape(72, 16), ref_dct[:, :16], 1e-4, rel=True)
 check("DCT-II ortho, all 128", np.asarray(out["dct_full"]).reshape(72, 128), ref_dct, 1e-4, rel=True)
+
+sk = json.load(open(os.path.join(data, "smpl/skeleton_neutral.json")))
+parents, offsets = sk["parents"], np.asarray(sk["offsets"])
+rots = x.T.reshape(128, 24, 3)
+pos, glob = np.zeros((128, 24, 3)), [None] * 24
+for j in range(24):
+    local = R.from_rotvec(rots[:, j])
+    if parents[j] < 0:
+        glob[j] = local
+    else:
+        glob[j] = glob[parents[j]] * local
+        pos[:, j] = pos[:, parents[j]] + glob[parents[j]].apply(offsets[j])
+fwd = glob[0][64].apply([0, 0, 1])
+unturn = R.from_rotvec([0, -np.arctan2(fwd[0], fwd[2]), 0])
+joints = [1, 2, 4, 5, 7, 8, 16, 17, 18, 19, 20, 21, 15]
+rel = unturn.apply(pos[:, joints].reshape(-1, 3)).reshape(128, len(joints) * 3).T  # (39, 128)
+ref_pose = scipy.fft.dct(rel, type=2, norm="ortho", axis=-1)[:, :16]
+check("pose (FK, heading, DCT-II first 16)", np.asarray(out["pose"]).reshape(39, 16), ref_pose, 1e-4, rel=True)
 
 series = []
 for f in files:

@@ -9,7 +9,7 @@
    frames) and turns them into camera axes (x, -y, -z). The two must agree
    to float32 precision.
 2. choreo solves the keypoints back (`choreo convert KP.npy OUT.json
-   --keypoints ... --source-fps 60`). This script poses the solved
+   --keypoints ... --source-fps 60 --smooth 0`). This script poses the solved
    rotations with its own FK; every limb bone (thigh, shin, upper arm,
    forearm) must point where the keypoints say, and the root must sit at
    the pelvis keypoint (scale recovered from bone lengths: the keypoints
@@ -93,7 +93,7 @@ with tempfile.TemporaryDirectory() as tmp:
         fails += not ok
 
         out = os.path.join(tmp, f"{layout}_solved.json")
-        subprocess.run([exe, "convert", npy, out, "--keypoints", layout, "--source-fps", "60"],
+        subprocess.run([exe, "convert", npy, out, "--keypoints", layout, "--source-fps", "60", "--smooth", "0"],
                        check=True, capture_output=True)
         s = json.load(open(out))
         srot = np.asarray(s["rotations"], dtype=float)

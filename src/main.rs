@@ -227,8 +227,10 @@ enum Cmd {
         frames: usize,
         #[arg(long, default_value_t = 10)]
         k: usize,
-        #[arg(long, default_value = "dct")]
-        embedding: String,
+        /// stft, dct, pca or pose (default: pose for keypoint / SMPL-from-video
+        /// files, i.e. with --keypoints or --source-fps; dct otherwise).
+        #[arg(long)]
+        embedding: Option<String>,
         #[arg(long, default_value = "cosine")]
         metric: String,
         /// KIND=VALUE, repeatable: hits must carry every label.
@@ -718,8 +720,12 @@ fn run(cli: Cli) -> Result<()> {
             json,
             read,
         } => {
-            let embedding = Embedding::parse(&embedding)
-                .with_context(|| format!("--embedding: '{embedding}' is not stft, dct or pca"))?;
+            let footage = read.keypoints.is_some() || read.source_fps.is_some();
+            let embedding =
+                embedding.unwrap_or_else(|| if footage { "pose" } else { "dct" }.into());
+            let embedding = Embedding::parse(&embedding).with_context(|| {
+                format!("--embedding: '{embedding}' is not stft, dct, pca or pose")
+            })?;
             let metric = Metric::parse(&metric)
                 .with_context(|| format!("--metric: '{metric}' is not cosine or euclidean"))?;
             let filters = parse_pairs("--filter", &filter)?;
@@ -1229,6 +1235,7 @@ fn dev_features(motion: &std::path::Path, start: usize, pca_on: &[PathBuf]) -> R
             "stft": ex.stft(&w),
             "dct": ex.dct(&w),
             "dct_full": ex.dct_full(&w),
+            "pose": ex.pose(&w),
             "pca": pca.as_ref().map(|p| json!({"mean": p.mean, "components": p.components, "explained_variance": p.explained_variance, "projection": p.project_window(&w)})),
         })
     );

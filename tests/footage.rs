@@ -302,7 +302,7 @@ async fn footage_ingested_with_video_is_found_from_mocap_and_finds_it() {
     // stored with it), and a query from the mocap finds it with the video
     // time of the matched window.
     let q = json!({"motion": {"id": mocap_id}, "start_s": 10.0, "k": 5, "exact": true,
-                   "filters": {"source": "video"}});
+                   "embedding": "pose", "filters": {"source": "video"}});
     let q_all = json!({"motion": {"id": mocap_id}, "start_s": 10.0, "k": 1, "exact": true});
     let (got, hits, all) = tokio::task::spawn_blocking(move || {
         (
@@ -335,7 +335,9 @@ async fn footage_ingested_with_video_is_found_from_mocap_and_finds_it() {
     assert!(mocap_hit.get("video").is_none(), "{mocap_hit}");
 
     // gRPC: a MediaPipe JSON of the same take queries the mocap (filtered
-    // by its corpus label); the take is the best hit, at the same moment.
+    // by its corpus label; footage is searched by the pose embedding unless
+    // the request names another); the take is the best hit, at the same
+    // moment.
     let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
         .await
         .unwrap();

@@ -361,14 +361,28 @@ pub struct QueryParams {
 }
 
 pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, ApiError> {
+    // Motion from video (keypoints, SMPL from an estimator) is searched by
+    // the pose embedding unless the request names another.
+    let footage = match &p.motion {
+        MotionInput::File { read, .. } => read.keypoints.is_some() || read.fps.is_some(),
+        MotionInput::Stored(id) => state
+            .store
+            .motion(*id)
+            .await
+            .ok()
+            .flatten()
+            .is_some_and(|r| r.format == "keypoints" || r.format == "smpl"),
+        MotionInput::Inline(_) => false,
+    };
     let source = match p.motion {
         MotionInput::Stored(id) => QuerySource::Stored(id),
         other => QuerySource::Motion(state.resolve("motion", other).await?),
     };
     let embedding = match p.embedding.as_str() {
+        "" if footage => Embedding::Pose,
         "" => Embedding::Stft,
         e => Embedding::parse(e).ok_or_else(|| {
-            ApiError::invalid("embedding", format!("'{e}' is not stft, dct or pca"))
+            ApiError::invalid("embedding", format!("'{e}' is not stft, dct, pca or pose"))
         })?,
     };
     let metric = match p.metric.as_str() {
