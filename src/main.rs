@@ -307,6 +307,11 @@ enum Cmd {
     },
     /// Serve REST and gRPC (see README: API).
     Serve(choreo::server::ServeConfig),
+    /// Token file lines for `serve --tokens`: new random tokens, hashes.
+    Token {
+        #[command(subcommand)]
+        cmd: cli::token::TokenCmd,
+    },
     /// Rehearsal footage: keypoint and SMPL test files made from real takes.
     Footage {
         #[command(subcommand)]
@@ -825,6 +830,7 @@ fn run(cli: Cli) -> Result<()> {
             cmd: EvalCmd::Footage(a),
         } => cli::footage::eval(a),
         Cmd::Footage { cmd } => cli::footage::run(cmd),
+        Cmd::Token { cmd } => cli::token::run(cmd),
         Cmd::Bench {
             cmd:
                 BenchCmd::Model {
@@ -949,7 +955,7 @@ async fn ingest(paths: Vec<PathBuf>, db: PathBuf, opts: IngestOptions, json: boo
         bail!("--hop must be at least 1");
     }
     let store = Store::open(&db).await?;
-    let files = choreo::service::ingest::collect_files(&paths);
+    let files = choreo::service::ingest::collect_files_with(&paths, &opts.read);
     let bar = indicatif::ProgressBar::new(files.len() as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template(
@@ -975,7 +981,8 @@ async fn ingest(paths: Vec<PathBuf>, db: PathBuf, opts: IngestOptions, json: boo
             report.errors.len()
         );
         for e in &report.errors {
-            println!("  {}: {}", e.file, e.reason);
+            // Every reason starts with the file it is about.
+            println!("  {}", e.reason);
         }
     }
     Ok(())

@@ -55,10 +55,26 @@ pub struct ServeConfig {
     /// (a folder written by `choreo-train inbetween`); missing = 503.
     #[arg(long, env = "CHOREO_INBETWEENER", default_value = "models/inbetween")]
     pub inbetweener: PathBuf,
-    /// Bearer token that writes (ingest, delete) must present; without one
-    /// writes are refused (403 / PERMISSION_DENIED).
+    /// One bearer token with every scope (read, write, admin), named
+    /// `token` in the audit trail. Without any token, writes answer 403.
     #[arg(long, env = "CHOREO_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// A token file: one `name scopes sha256:<hex>` line per token (scopes
+    /// read, write, admin; `choreo token new NAME` makes a line). Read again
+    /// when it changes, so removing a line revokes a token.
+    #[arg(long, env = "CHOREO_TOKENS")]
+    pub tokens: Option<PathBuf>,
+    /// Reads (query, list, get, export, the model endpoints) need no token.
+    /// Without it, and without any token, the server refuses to start.
+    #[arg(long, env = "CHOREO_PUBLIC_READ")]
+    pub public_read: bool,
+    /// Requests per second per client (a token, or an address for
+    /// anonymous reads); past it, 429 with Retry-After. 0 = no limit.
+    #[arg(long, env = "CHOREO_RATE_LIMIT", default_value_t = 0.0)]
+    pub rate_limit: f64,
+    /// The bucket of --rate-limit: requests a client may make at once.
+    #[arg(long, env = "CHOREO_RATE_BURST", default_value_t = 20.0)]
+    pub rate_burst: f64,
     /// An origin (`https://studio.example.org`) whose pages may call the
     /// REST API from a browser (CORS, preflight answered); repeat or
     /// comma-separate for several, `*` for any (development). None: no
@@ -213,9 +229,28 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         );
         None
     };
-    if cfg.token.as_deref().is_none_or(str::is_empty) {
-        tracing::warn!("no --token (CHOREO_TOKEN): ingest and delete are switched off");
+    let auth = Arc::new(
+        crate::api::auth::Auth::new(&crate::api::auth::AuthConfig {
+            token: cfg.token.clone(),
+            tokens_file: cfg.tokens.clone(),
+            public_read: cfg.public_read,
+            rate_limit: cfg.rate_limit,
+            rate_burst: cfg.rate_burst,
+        })
+        .map_err(|e| anyhow::anyhow!("--tokens / --token: {e}"))?,
+    );
+    if !auth.has_tokens() {
+        if !cfg.public_read {
+            anyhow::bail!(
+                "no token and no --public-read: every request would be refused. Give --token \
+                 (CHOREO_TOKEN) or --tokens FILE (CHOREO_TOKENS), or --public-read for an open archive"
+            );
+        }
+        tracing::warn!("no --token / --tokens: reads are open (--public-read), ingest and delete are switched off");
+    } else if cfg.public_read {
+        tracing::warn!("--public-read: anyone who reaches the port can query, list and export every stored motion");
     }
+    crate::api::auth::spawn_reloader(auth.clone());
     let inbetweener = if cfg.inbetweener.exists() {
         Some(Arc::new(
             crate::lm::inbetween::Inbetweener::load_with(&cfg.inbetweener, &engine)
@@ -234,7 +269,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         cfg.workers,
         model,
         inbetweener,
-        cfg.token.clone(),
+        auth,
     ));
     state
         .searcher
@@ -257,10 +292,13 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     }
     let r1 = rx.clone();
     let t1 = tokio::spawn(async move {
-        axum::serve(http_l, app)
-            .with_graceful_shutdown(stopped(r1))
-            .await
-            .context("REST server")
+        axum::serve(
+            http_l,
+            app.into_make_service_with_connect_info::<std::net::SocketAddr>(),
+        )
+        .with_graceful_shutdown(stopped(r1))
+        .await
+        .context("REST server")
     });
     let grpc_metrics = crate::api::metrics::GrpcMetricsLayer(state.metrics.clone());
     let svc = grpc::service(state, max);

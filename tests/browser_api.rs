@@ -29,6 +29,10 @@ fn config(dir: &std::path::Path, cors: &[&str]) -> ServeConfig {
         hnsw_backend: choreo::index::hnsw::Backend::Flat,
         runtime: choreo::lm::engine::Runtime::Tract,
         ort_lib: None,
+        tokens: None,
+        public_read: true,
+        rate_limit: 0.0,
+        rate_burst: 20.0,
     }
 }
 

@@ -58,6 +58,10 @@ fn config(dir: &Path, ingest: Vec<PathBuf>) -> ServeConfig {
         hnsw_backend: choreo::index::hnsw::Backend::Flat,
         runtime: choreo::lm::engine::Runtime::Tract,
         ort_lib: None,
+        tokens: None,
+        public_read: true,
+        rate_limit: 0.0,
+        rate_burst: 20.0,
     }
 }
 
@@ -404,4 +408,41 @@ async fn footage_ingested_with_video_is_found_from_mocap_and_finds_it() {
         .unwrap_err();
     assert_eq!(e.code(), tonic::Code::InvalidArgument);
     assert!(e.message().contains("motion.file.up"), "{}", e.message());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_store_without_pose_embeddings_gets_them_on_open() {
+    use choreo::features::Embedding;
+    use choreo::service::ingest::{ingest, IngestOptions};
+    let Some(aist) = require("aistpp/motions") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let store = choreo::store::Store::open(&dir.path().join("old.db"))
+        .await
+        .unwrap();
+    ingest(&store, &[aist], &IngestOptions::default(), &|_, _, _| {})
+        .await
+        .unwrap();
+    let (_, windows) = store.counts().await.unwrap();
+    assert!(windows > 50);
+    let pose = store.embeddings(Embedding::Pose).await.unwrap();
+    assert_eq!(pose.len(), windows);
+    // A store written before the pose embedding existed: none stored.
+    store
+        .replace_embeddings(Embedding::Pose, &[], "pose", "{}", 0)
+        .await
+        .unwrap();
+    assert_eq!(store.count_embeddings(Embedding::Pose).await.unwrap(), 0);
+    let searcher = choreo::service::query::Searcher::open(store.clone(), Default::default())
+        .await
+        .unwrap();
+    drop(searcher);
+    let again = store.embeddings(Embedding::Pose).await.unwrap();
+    assert_eq!(again.len(), windows);
+    // The same vectors as at ingest.
+    let before: std::collections::HashMap<i64, Vec<f32>> = pose.into_iter().collect();
+    for (id, v) in again {
+        assert_eq!(before[&id], v, "window {id}");
+    }
 }

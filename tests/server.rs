@@ -122,6 +122,10 @@ fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
         hnsw_backend: choreo::index::hnsw::Backend::Flat,
         runtime: choreo::lm::engine::Runtime::Tract,
         ort_lib: None,
+        tokens: None,
+        public_read: true,
+        rate_limit: 0.0,
+        rate_burst: 20.0,
     }
 }
 
@@ -1296,7 +1300,13 @@ fn spawn_server(dir: &std::path::Path) -> (std::process::Child, SocketAddr) {
         ])
         .arg("--data-dir")
         .arg(dir)
-        .args(["--model", "/nonexistent-model", "--token", TOKEN])
+        .args([
+            "--model",
+            "/nonexistent-model",
+            "--token",
+            TOKEN,
+            "--public-read",
+        ])
         .stderr(std::process::Stdio::piped())
         .stdout(std::process::Stdio::null())
         .spawn()

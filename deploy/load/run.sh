@@ -17,7 +17,7 @@ command -v wrk >/dev/null || { echo "wrk not found (apt-get install wrk)" >&2; e
 work=$(mktemp -d)
 trap 'kill $pid 2>/dev/null; rm -rf "$work"' EXIT
 "$bin" serve --data-dir "$work/data" --http-port 0 --grpc-port 0 \
-  --ingest "$data" --workers "${CHOREO_WORKERS:-2}" 2> "$work/server.log" &
+  --ingest "$data" --workers "${CHOREO_WORKERS:-2}" --public-read 2> "$work/server.log" &
 pid=$!
 for _ in $(seq 600); do
   grep -q "REST on" "$work/server.log" && break

@@ -151,7 +151,7 @@ def main():
     log = open(os.path.join(work, "server.log"), "w+")
     server = subprocess.Popen(
         [args.bin, "serve", "--data-dir", os.path.join(work, "data"), "--http-port", "0",
-         "--grpc-port", "0", "--ingest", corpus, "--token", TOKEN, "--workers", "2"],
+         "--grpc-port", "0", "--ingest", corpus, "--token", TOKEN, "--public-read", "--workers", "2"],
         stderr=log, stdout=log)
     try:
         base = None

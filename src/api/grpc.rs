@@ -13,6 +13,7 @@ pub mod pb {
     tonic::include_proto!("choreo.v1");
 }
 
+use super::auth::{Principal, Scope};
 use pb::choreo_server::{Choreo, ChoreoServer};
 
 /// The encoded descriptor set of `proto/choreo/v1`, served by reflection.
@@ -20,7 +21,17 @@ pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("chor
 
 impl From<ApiError> for Status {
     fn from(e: ApiError) -> Status {
-        Status::new(e.grpc_code(), e.to_string())
+        let mut st = Status::new(e.grpc_code(), e.to_string());
+        // The REST answer's Retry-After, as metadata.
+        let retry = match &e {
+            ApiError::RateLimited { retry_after_s, .. } => Some(*retry_after_s),
+            ApiError::Busy(_) => Some(1),
+            _ => None,
+        };
+        if let Some(secs) = retry {
+            st.metadata_mut().insert("retry-after", secs.into());
+        }
+        st
     }
 }
 
@@ -140,6 +151,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::GenerateRequest>,
     ) -> Result<Response<pb::GenerateResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let p = generate_params(req.into_inner())?;
         let (m, r) = super::lm::generate(&self.state, p).await?;
         Ok(Response::new(pb::GenerateResponse {
@@ -154,6 +167,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::GenerateRequest>,
     ) -> Result<Response<FrameStream>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let p = generate_params(req.into_inner())?;
         let (skeleton, fps) = super::lm::stream_format(&self.state)?;
         let rx = super::lm::generate_stream(&self.state, p).await?;
@@ -168,6 +183,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<tonic::Streaming<pb::DuetRequest>>,
     ) -> Result<Response<FrameStream>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let mut inbound = req.into_inner();
         let first = inbound.message().await?.ok_or_else(|| {
             Status::invalid_argument("duet: the stream ended before its set-up message")
@@ -249,6 +266,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::ClassifyRequest>,
     ) -> Result<Response<pb::ClassifyResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
         let c = super::lm::classify(&self.state, source("motion", r.motion)?).await?;
         Ok(Response::new(pb::ClassifyResponse {
@@ -270,6 +289,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::QueryRequest>,
     ) -> Result<Response<pb::QueryResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
         let hits = super::query(
             &self.state,
@@ -306,6 +327,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::InterpolateRequest>,
     ) -> Result<Response<pb::InterpolateResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
         let (m, rep) = super::interpolate(
             &self.state,
@@ -339,6 +362,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::LowpassRequest>,
     ) -> Result<Response<pb::LowpassResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
         let m = super::lowpass(&self.state, source("motion", r.motion)?, r.cutoff as usize).await?;
         Ok(Response::new(pb::LowpassResponse {
@@ -350,6 +375,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::KeyframesRequest>,
     ) -> Result<Response<pb::KeyframesResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
         let (m, rep) = super::keyframes(
             &self.state,
@@ -373,8 +400,10 @@ impl Choreo for ChoreoGrpc {
 
     async fn list_motions(
         &self,
-        _req: Request<pb::ListMotionsRequest>,
+        req: Request<pb::ListMotionsRequest>,
     ) -> Result<Response<pb::ListMotionsResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let rows = super::list_motions(&self.state).await?;
         Ok(Response::new(pb::ListMotionsResponse {
             motions: rows.into_iter().map(summary_pb).collect(),
@@ -385,7 +414,10 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::IngestRequest>,
     ) -> Result<Response<pb::IngestResponse>, Status> {
-        self.state.authorize_write(bearer(&req))?;
+        let who = self
+            .state
+            .authorize(bearer(&req), Scope::Write, peer(&req))?;
+        let actor = actor(&who, &req);
         let r = req.into_inner();
         if r.video.is_empty() && r.video_offset_s != 0.0 {
             return Err(ApiError::invalid("video_offset_s", "given without video").into());
@@ -399,6 +431,7 @@ impl Choreo for ChoreoGrpc {
             source("motion", r.motion)?,
             r.labels.into_iter().collect(),
             video,
+            &actor,
         )
         .await?;
         let merged_labels = stored
@@ -426,6 +459,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::MotionId>,
     ) -> Result<Response<pb::GetMotionResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let (row, m) = super::get_motion(&self.state, req.into_inner().id).await?;
         Ok(Response::new(pb::GetMotionResponse {
             summary: Some(summary_pb(row)),
@@ -437,6 +472,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::MotionId>,
     ) -> Result<Response<pb::ExportMotionResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let bvh = super::export_bvh(&self.state, req.into_inner().id).await?;
         Ok(Response::new(pb::ExportMotionResponse { bvh }))
     }
@@ -445,9 +482,56 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::MotionId>,
     ) -> Result<Response<pb::DeleteMotionResponse>, Status> {
-        self.state.authorize_write(bearer(&req))?;
-        super::delete_motion(&self.state, req.into_inner().id).await?;
+        let who = self
+            .state
+            .authorize(bearer(&req), Scope::Write, peer(&req))?;
+        let actor = actor(&who, &req);
+        super::delete_motion(&self.state, req.into_inner().id, &actor).await?;
         Ok(Response::new(pb::DeleteMotionResponse {}))
+    }
+
+    async fn list_audit(
+        &self,
+        req: Request<pb::ListAuditRequest>,
+    ) -> Result<Response<pb::ListAuditResponse>, Status> {
+        self.state
+            .authorize(bearer(&req), Scope::Admin, peer(&req))?;
+        let limit = match req.into_inner().limit {
+            0 => 100,
+            n => n,
+        };
+        let entries = super::audit(&self.state, limit)
+            .await?
+            .into_iter()
+            .map(|r| pb::AuditEntry {
+                id: r.id,
+                at: r.at,
+                actor: r.actor,
+                action: r.action,
+                target: r.target,
+                request_id: r.request_id,
+            })
+            .collect();
+        Ok(Response::new(pb::ListAuditResponse { entries }))
+    }
+}
+
+/// The caller's address (the anonymous caller's rate-limit key).
+fn peer<T>(req: &Request<T>) -> Option<std::net::IpAddr> {
+    req.remote_addr().map(|a| a.ip())
+}
+
+/// The writer of a request and its id (`x-request-id`, set by the metrics
+/// layer when the caller sent none).
+fn actor<T>(who: &Principal, req: &Request<T>) -> super::Actor {
+    super::Actor {
+        name: who.name.clone(),
+        request_id: req
+            .metadata()
+            .get(super::metrics::REQUEST_ID)
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("")
+            .to_string(),
     }
 }
 

@@ -8,7 +8,7 @@ use axum::extract::{DefaultBodyLimit, Path, State};
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
-use axum::{Json, Router};
+use axum::{Extension, Json, Router};
 use base64::Engine;
 use serde::Deserialize;
 use serde_json::json;
@@ -92,11 +92,15 @@ impl IntoResponse for ApiError {
             StatusCode::from_u16(self.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
         let mut resp = (status, Json(self.body())).into_response();
         if status == StatusCode::TOO_MANY_REQUESTS {
-            // Permits free within a request's time; one second is a fair
-            // first back-off.
+            // Worker permits free within a request's time: one second is a
+            // fair first back-off. A rate limit says when its bucket refills.
+            let secs = match &self {
+                ApiError::RateLimited { retry_after_s, .. } => *retry_after_s,
+                _ => 1,
+            };
             resp.headers_mut().insert(
                 axum::http::header::RETRY_AFTER,
-                axum::http::HeaderValue::from_static("1"),
+                axum::http::HeaderValue::from(secs),
             );
         }
         resp
@@ -343,12 +347,25 @@ pub struct IngestBody {
     pub video_offset_s: Option<f64>,
 }
 
+/// The writer of a request (its principal, set by [`require_scope`]) and
+/// its id.
+fn actor(who: &super::auth::Principal, headers: &HeaderMap) -> super::Actor {
+    super::Actor {
+        name: who.name.clone(),
+        request_id: headers
+            .get(super::metrics::REQUEST_ID)
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("")
+            .to_string(),
+    }
+}
+
 async fn ingest(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<super::auth::Principal>,
     headers: HeaderMap,
     b: Result<Json<IngestBody>, JsonRejection>,
 ) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
-    s.authorize_write(bearer(&headers))?;
     let b = body(b)?;
     if b.video.is_none() && b.video_offset_s.is_some() {
         return Err(ApiError::invalid("video_offset_s", "given without video"));
@@ -357,7 +374,14 @@ async fn ingest(
         video,
         video_offset_s: b.video_offset_s.unwrap_or(0.0),
     });
-    let stored = super::ingest(&s, source("motion", b.motion)?, b.labels, video).await?;
+    let stored = super::ingest(
+        &s,
+        source("motion", b.motion)?,
+        b.labels,
+        video,
+        &actor(&who, &headers),
+    )
+    .await?;
     let status = match stored.stored {
         super::Stored::New { .. } => StatusCode::CREATED,
         super::Stored::Existing { .. } => StatusCode::OK,
@@ -426,12 +450,66 @@ async fn export_motion(
 
 async fn delete_motion(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<super::auth::Principal>,
     headers: HeaderMap,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<StatusCode, ApiError> {
-    s.authorize_write(bearer(&headers))?;
-    super::delete_motion(&s, motion_id(id)?).await?;
+    super::delete_motion(&s, motion_id(id)?, &actor(&who, &headers)).await?;
     Ok(StatusCode::NO_CONTENT)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AuditQuery {
+    #[serde(default = "default_audit_limit")]
+    pub limit: i64,
+}
+
+fn default_audit_limit() -> i64 {
+    100
+}
+
+/// The newest audit entries (`admin` scope).
+async fn audit(
+    State(s): State<Arc<AppState>>,
+    q: Result<axum::extract::Query<AuditQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let q = q.map_err(|e| ApiError::invalid("limit", e.body_text()))?;
+    let entries = super::audit(&s, q.limit).await?;
+    Ok(Json(json!({ "entries": entries })))
+}
+
+/// Every `/v1` route needs its scope ([`super::auth::rest_scope`]): the
+/// bearer token (or, where a browser cannot set headers, as on a WebSocket,
+/// `?access_token=`), or nothing for reads under `--public-read`. One
+/// request is taken from the caller's bucket; the caller's principal goes
+/// into the request for the handlers.
+async fn require_scope(
+    State(s): State<Arc<AppState>>,
+    mut req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let Some(need) = super::auth::rest_scope(req.method(), req.uri().path()) else {
+        return next.run(req).await;
+    };
+    let addr = req
+        .extensions()
+        .get::<axum::extract::ConnectInfo<std::net::SocketAddr>>()
+        .map(|c| c.0.ip());
+    let header = bearer(req.headers()).map(str::to_string).or_else(|| {
+        req.uri().query().and_then(|q| {
+            q.split('&')
+                .find_map(|kv| kv.strip_prefix("access_token="))
+                .map(|t| format!("Bearer {t}"))
+        })
+    });
+    match s.authorize(header.as_deref(), need, addr) {
+        Ok(who) => {
+            req.extensions_mut().insert(who);
+            next.run(req).await
+        }
+        Err(e) => e.into_response(),
+    }
 }
 
 /// Sampling settings as JSON, all optional. Without a temperature the
@@ -631,6 +709,7 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         .route("/v1/motions/{id}", get(get_motion).delete(delete_motion))
         .route("/v1/motions/{id}/bvh", get(export_motion))
         .route("/v1/motions/{id}/glb", get(export_glb))
+        .route("/v1/audit", get(audit))
         .route(
             "/openapi.json",
             get(|| async {
@@ -641,6 +720,10 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
             }),
         )
         .layer(DefaultBodyLimit::max(max_body))
+        .route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            require_scope,
+        ))
         .route_layer(axum::middleware::from_fn_with_state(state.clone(), track))
         .fallback(not_found)
         .layer(axum::middleware::from_fn(method_json))

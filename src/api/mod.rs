@@ -5,6 +5,7 @@
 //! [`http`] (axum) and [`grpc`] (tonic) only convert wire types to the
 //! requests here and back (ARCHITECTURE rule 1).
 
+pub mod auth;
 pub mod grpc;
 pub mod http;
 pub mod lm;
@@ -58,9 +59,12 @@ pub enum ApiError {
     /// A write without the right bearer token.
     #[error("unauthenticated: {0}")]
     Unauthenticated(String),
-    /// Writes are switched off (the server has no token).
+    /// The token lacks the scope, or the server has no way to grant it.
     #[error("permission denied: {0}")]
     PermissionDenied(String),
+    /// The caller is over its request rate: retry after the given seconds.
+    #[error("rate limited: {reason}")]
+    RateLimited { reason: String, retry_after_s: u64 },
     #[error("internal error: {0}")]
     Internal(String),
 }
@@ -77,7 +81,7 @@ impl ApiError {
         match self {
             ApiError::Invalid { .. } => 400,
             ApiError::NotFound(_) | ApiError::Missing { .. } => 404,
-            ApiError::Busy(_) => 429,
+            ApiError::Busy(_) | ApiError::RateLimited { .. } => 429,
             ApiError::TooLarge(_) => 413,
             ApiError::Unavailable(_) => 503,
             ApiError::Unauthenticated(_) => 401,
@@ -90,7 +94,9 @@ impl ApiError {
         match self {
             ApiError::Invalid { .. } => tonic::Code::InvalidArgument,
             ApiError::NotFound(_) | ApiError::Missing { .. } => tonic::Code::NotFound,
-            ApiError::Busy(_) | ApiError::TooLarge(_) => tonic::Code::ResourceExhausted,
+            ApiError::Busy(_) | ApiError::TooLarge(_) | ApiError::RateLimited { .. } => {
+                tonic::Code::ResourceExhausted
+            }
             ApiError::Unavailable(_) => tonic::Code::Unavailable,
             ApiError::Unauthenticated(_) => tonic::Code::Unauthenticated,
             ApiError::PermissionDenied(_) => tonic::Code::PermissionDenied,
@@ -113,7 +119,9 @@ impl ApiError {
         match self {
             ApiError::Invalid { .. } => "invalid_argument",
             ApiError::NotFound(_) | ApiError::Missing { .. } => "not_found",
-            ApiError::Busy(_) | ApiError::TooLarge(_) => "resource_exhausted",
+            ApiError::Busy(_) | ApiError::TooLarge(_) | ApiError::RateLimited { .. } => {
+                "resource_exhausted"
+            }
             ApiError::Unavailable(_) => "unavailable",
             ApiError::Unauthenticated(_) => "unauthenticated",
             ApiError::PermissionDenied(_) => "permission_denied",
@@ -227,8 +235,8 @@ pub struct AppState {
     /// The live searcher: writes go through it and reach its indexes at
     /// once; its maintenance runs in the background.
     pub searcher: Arc<Searcher>,
-    /// The bearer token writes need; `None` switches writes off.
-    pub token: Option<String>,
+    /// Tokens, scopes, open reads and per-client limits.
+    pub auth: Arc<auth::Auth>,
     /// Permits for CPU-heavy requests (interpolate, lowpass, keyframes,
     /// generate, classify; a stream holds one for its whole life).
     pub workers: Arc<Semaphore>,
@@ -251,12 +259,12 @@ impl AppState {
         workers: usize,
         model: Option<crate::lm::model::MotionModel>,
         inbetweener: Option<Arc<crate::lm::inbetween::Inbetweener>>,
-        token: Option<String>,
+        auth: Arc<auth::Auth>,
     ) -> AppState {
         AppState {
             store,
             searcher: Arc::new(searcher),
-            token: token.filter(|t| !t.is_empty()),
+            auth,
             workers: Arc::new(Semaphore::new(workers.max(1))),
             light: Arc::new(Semaphore::new(
                 std::thread::available_parallelism().map_or(2, |n| n.get()),
@@ -303,28 +311,33 @@ impl AppState {
         Ok(m)
     }
 
-    /// A write may go ahead: the server has a token and `presented` (the
-    /// `Authorization` header or gRPC metadata) is `Bearer <token>`.
-    pub fn authorize_write(&self, presented: Option<&str>) -> Result<(), ApiError> {
-        let Some(token) = &self.token else {
-            return Err(ApiError::PermissionDenied(
-                "writes are switched off: start the server with --token (CHOREO_TOKEN)".into(),
-            ));
-        };
+    /// May the caller go ahead with a request that needs `need`? `header`
+    /// is the `Authorization` header (or gRPC metadata) as sent, `addr` the
+    /// peer (the anonymous caller's rate-limit key). Takes one request from
+    /// the caller's bucket. Returns who the caller is.
+    pub fn authorize(
+        &self,
+        header: Option<&str>,
+        need: auth::Scope,
+        addr: Option<std::net::IpAddr>,
+    ) -> Result<auth::Principal, ApiError> {
         // The scheme is case-insensitive (RFC 9110 §11.1).
-        let given = presented
-            .and_then(|h| h.split_once(' '))
-            .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
-            .map(|(_, t)| t.trim());
-        match given {
-            None => Err(ApiError::Unauthenticated(
-                "this write needs the header `Authorization: Bearer <token>`".into(),
-            )),
-            Some(g) if constant_time_eq(g.as_bytes(), token.as_bytes()) => Ok(()),
-            Some(_) => Err(ApiError::Unauthenticated(
-                "the bearer token is wrong".into(),
-            )),
-        }
+        let token = match header {
+            None => None,
+            Some(h) => Some(
+                h.split_once(' ')
+                    .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+                    .map(|(_, t)| t.trim())
+                    .ok_or_else(|| {
+                        ApiError::Unauthenticated(
+                            "the Authorization header must be `Bearer <token>`".into(),
+                        )
+                    })?,
+            ),
+        };
+        let who = self.auth.authorize(token, need)?;
+        self.auth.admit(&who, addr)?;
+        Ok(who)
     }
 
     /// Run CPU work on the blocking pool under a worker permit; no permit
@@ -563,10 +576,6 @@ pub(crate) fn internal(e: impl std::fmt::Display) -> ApiError {
     ApiError::Internal(e.to_string())
 }
 
-fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
-}
-
 /// A video link as a request gives it: a path or URL of at most 2,048
 /// characters, and a finite offset.
 fn check_video(v: &VideoLink) -> Result<(), ApiError> {
@@ -646,11 +655,21 @@ pub fn read_options(
 /// kept as choreo JSON) with `labels` added; the next query sees it.
 /// Idempotent by content hash: labels sent with content already stored are
 /// merged into its labels, and the answer gives them.
+/// Who made a write, for the audit trail.
+#[derive(Clone, Debug)]
+pub struct Actor {
+    /// The token's name (`anonymous` never writes).
+    pub name: String,
+    /// The request's id (`x-request-id`), as in the server's log line.
+    pub request_id: String,
+}
+
 pub async fn ingest(
     state: &AppState,
     input: MotionInput,
     labels: Labels,
     video: Option<VideoLink>,
+    actor: &Actor,
 ) -> Result<IngestOutcome, ApiError> {
     if let Some(v) = &video {
         check_video(v)?;
@@ -702,12 +721,46 @@ pub async fn ingest(
         .clone()
         .try_acquire_owned()
         .map_err(|_| ApiError::Busy("every worker is busy; retry ingest later".into()))?;
-    state
+    let out = state
         .searcher
         .ingest(&name, bytes, &opts)
         .await
         .map_err(internal)?
-        .map_err(|e| prefix("motion", e.into()))
+        .map_err(|e| prefix("motion", e.into()))?;
+    let (action, target) = match out.stored {
+        Stored::New { motion_id, windows } => (
+            "ingest",
+            format!("motion {motion_id} from {name} ({windows} windows)"),
+        ),
+        Stored::Existing { motion_id } => (
+            "ingest-existing",
+            format!(
+                "motion {motion_id} from {name}{}",
+                if out.merged_labels.is_some() {
+                    ", labels merged"
+                } else {
+                    ", nothing written"
+                }
+            ),
+        ),
+    };
+    state
+        .store
+        .audit_append(&actor.name, action, &target, &actor.request_id)
+        .await
+        .map_err(internal)?;
+    Ok(out)
+}
+
+/// The newest `limit` (1..=10,000) audit entries, newest first.
+pub async fn audit(state: &AppState, limit: i64) -> Result<Vec<crate::store::AuditRow>, ApiError> {
+    if !(1..=10_000).contains(&limit) {
+        return Err(ApiError::invalid(
+            "limit",
+            format!("{limit} is not in 1..=10000"),
+        ));
+    }
+    state.store.audit(limit).await.map_err(internal)
 }
 
 /// A stored motion and its row.
@@ -745,11 +798,20 @@ pub async fn export_glb(state: &AppState, id: i64) -> Result<Vec<u8>, ApiError> 
 }
 
 /// Remove a stored motion and everything derived from it.
-pub async fn delete_motion(state: &AppState, id: i64) -> Result<(), ApiError> {
+pub async fn delete_motion(state: &AppState, id: i64, actor: &Actor) -> Result<(), ApiError> {
     if !state.searcher.delete(id).await.map_err(internal)? {
         return Err(ApiError::NotFound(format!("motion {id}")));
     }
-    Ok(())
+    state
+        .store
+        .audit_append(
+            &actor.name,
+            "delete",
+            &format!("motion {id}"),
+            &actor.request_id,
+        )
+        .await
+        .map_err(internal)
 }
 
 pub async fn list_motions(state: &AppState) -> Result<Vec<MotionRow>, ApiError> {

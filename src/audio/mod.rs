@@ -172,7 +172,7 @@ pub fn read(path: &std::path::Path) -> Result<Audio, MotionError> {
     let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|e| MotionError::Io {
         file: name.clone(),
-        source: e,
+        error: e,
     })?;
     let ext = path
         .extension()

@@ -6,7 +6,7 @@
 use anyhow::{bail, Context, Result};
 use choreo::features::Embedding;
 use choreo::motion::io::{self, keypoints as kpio, smpl_params, ReadOptions};
-use choreo::motion::keypoints::{synthesize, Layout, SynthOptions, DEFAULT_SMOOTH_S, PELVIS_SHARE};
+use choreo::motion::keypoints::{synthesize, Layout, SynthOptions, DEFAULT_SMOOTH_S};
 use choreo::service::eval_footage::{evaluate, FootageEvalOptions};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -135,9 +135,10 @@ pub struct EvalArgs {
     fps: f64,
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Share of the torso's tilt given to the pelvis.
-    #[arg(long, default_value_t = PELVIS_SHARE)]
-    pelvis_share: f64,
+    /// Share of the torso's tilt given to the pelvis (default: each
+    /// layout's own).
+    #[arg(long)]
+    pelvis_share: Option<f64>,
     /// Keypoint smoothing before the solve (Gaussian σ, seconds; 0 = off).
     #[arg(long, default_value_t = DEFAULT_SMOOTH_S)]
     smooth: f64,
@@ -211,7 +212,7 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         r.takes,
         r.frames,
         r.video_fps,
-        r.pelvis_share,
+        r.pelvis_share.map_or("each layout's".to_string(), |p| p.to_string()),
         r.smooth_s,
         t0.elapsed().as_secs_f64()
     );

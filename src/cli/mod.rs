@@ -5,6 +5,7 @@ pub mod bench_index;
 pub mod bench_model;
 pub mod eval_generate;
 pub mod footage;
+pub mod token;
 
 use anyhow::{Context, Result};
 

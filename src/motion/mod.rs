@@ -24,12 +24,10 @@ pub enum MotionError {
     },
     #[error("{file}: {reason}")]
     Unsupported { file: String, reason: String },
-    #[error("{file}: {source}")]
-    Io {
-        file: String,
-        #[source]
-        source: std::io::Error,
-    },
+    /// The reason is in the message (not a chained source, which would
+    /// print it twice).
+    #[error("{file}: {error}")]
+    Io { file: String, error: std::io::Error },
 }
 
 impl MotionError {
@@ -58,9 +56,9 @@ impl MotionError {
                 file: file.to_string(),
                 reason,
             },
-            MotionError::Io { source, .. } => MotionError::Io {
+            MotionError::Io { error, .. } => MotionError::Io {
                 file: file.to_string(),
-                source,
+                error,
             },
         }
     }

@@ -51,7 +51,7 @@ pub struct FootageEval {
     pub takes: usize,
     pub frames: usize,
     pub video_fps: f64,
-    pub pelvis_share: f64,
+    pub pelvis_share: Option<f64>,
     pub smooth_s: f64,
     pub ik: Vec<IkRow>,
     pub search: Vec<SearchRow>,
@@ -63,7 +63,8 @@ pub struct FootageEvalOptions {
     pub layouts: Vec<Layout>,
     pub video_fps: f64,
     pub seed: u64,
-    pub pelvis_share: f64,
+    /// Overrides each layout's own share.
+    pub pelvis_share: Option<f64>,
     pub smooth_s: f64,
     pub embeddings: Vec<Embedding>,
     pub hop: usize,
@@ -280,7 +281,7 @@ pub fn evaluate(files: &[PathBuf], opts: &FootageEvalOptions) -> FootageEval {
                 // The truth as the camera sees it: turned by its heading.
                 let truth = turned(&truth, so.yaw_deg);
                 let solve_opts = SolveOptions {
-                    pelvis_share: opts.pelvis_share,
+                    pelvis_share: opts.pelvis_share.unwrap_or(layout.pelvis_share()),
                     smooth_s: opts.smooth_s,
                     ..SolveOptions::new(layout)
                 };

@@ -64,10 +64,20 @@ pub const MOTION_EXTENSIONS: [&str; 4] = ["pkl", "pickle", "npz", "bvh"];
 
 /// Every motion file under the given files/folders, sorted, deduplicated.
 pub fn collect_files(paths: &[PathBuf]) -> Vec<PathBuf> {
+    collect_files_with(paths, &ReadOptions::default())
+}
+
+/// [`collect_files`] for a read with these options: with a keypoint layout,
+/// folders give their `.npy` and `.json` files too.
+pub fn collect_files_with(paths: &[PathBuf], read: &ReadOptions) -> Vec<PathBuf> {
+    let mut exts = MOTION_EXTENSIONS.to_vec();
+    if read.keypoints.is_some() {
+        exts.extend(["npy", "json"]);
+    }
     let mut out = Vec::new();
     for p in paths {
         if p.is_dir() {
-            out.extend(crate::data::files_with_ext(p, &MOTION_EXTENSIONS));
+            out.extend(crate::data::files_with_ext(p, &exts));
         } else {
             out.push(p.clone());
         }
@@ -165,7 +175,7 @@ pub async fn ingest(
     opts: &IngestOptions,
     progress: &(dyn Fn(usize, usize, &str) + Sync),
 ) -> Result<IngestReport, StoreError> {
-    let files = collect_files(paths);
+    let files = collect_files_with(paths, &opts.read);
     let mut report = IngestReport {
         files: files.len(),
         ..Default::default()

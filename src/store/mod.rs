@@ -66,6 +66,19 @@ pub struct VideoLink {
     pub video_offset_s: f64,
 }
 
+/// One entry of the audit trail.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, sqlx::FromRow)]
+pub struct AuditRow {
+    pub id: i64,
+    /// When, UTC, ISO 8601.
+    pub at: String,
+    /// The token's name (never the token).
+    pub actor: String,
+    pub action: String,
+    pub target: String,
+    pub request_id: String,
+}
+
 /// A motion to insert, with its windows and their embeddings.
 pub struct NewMotion {
     pub source_path: String,
@@ -596,6 +609,36 @@ impl Store {
         bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
         tx.commit().await.map_err(|e| self.db(e))?;
         Ok(())
+    }
+
+    /// Append one entry to the audit trail.
+    pub async fn audit_append(
+        &self,
+        actor: &str,
+        action: &str,
+        target: &str,
+        request_id: &str,
+    ) -> Result<()> {
+        sqlx::query("INSERT INTO audit (actor, action, target, request_id) VALUES (?, ?, ?, ?)")
+            .bind(actor)
+            .bind(action)
+            .bind(target)
+            .bind(request_id)
+            .execute(&self.pool)
+            .await
+            .map_err(|e| self.db(e))?;
+        Ok(())
+    }
+
+    /// The newest `limit` audit entries, newest first.
+    pub async fn audit(&self, limit: i64) -> Result<Vec<AuditRow>> {
+        sqlx::query_as(
+            "SELECT id, at, actor, action, target, request_id FROM audit ORDER BY id DESC LIMIT ?",
+        )
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await
+        .map_err(|e| self.db(e))
     }
 
     /// A stored model: (the generation it was fitted at, its JSON).

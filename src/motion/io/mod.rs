@@ -233,9 +233,9 @@ fn npz_has_any(bytes: &[u8], keys: &[&str]) -> bool {
 
 pub fn read_path(path: &Path, opts: &ReadOptions) -> Result<Loaded, MotionError> {
     let file = path.display().to_string();
-    let io = |source| MotionError::Io {
+    let io = |error| MotionError::Io {
         file: file.clone(),
-        source,
+        error,
     };
     let meta = std::fs::metadata(path).map_err(io)?;
     if meta.len() > MAX_FILE_BYTES {
@@ -277,9 +277,9 @@ pub fn write_path(
         });
     };
     let tmp = path.with_extension("partial");
-    let io = |source| MotionError::Io {
+    let io = |error| MotionError::Io {
         file: file.clone(),
-        source,
+        error,
     };
     std::fs::write(&tmp, bytes).map_err(io)?;
     std::fs::rename(&tmp, path).map_err(io)

@@ -1,0 +1,512 @@
+//! Who may do what: scoped bearer tokens, open reads only when asked for,
+//! and a token bucket per client.
+//!
+//! Tokens come from `--token` (one token with every scope, as before) and
+//! from a token file (`--tokens FILE`), one per line:
+//!
+//! ```text
+//! # name       scopes            secret (SHA-256 of the token, hex)
+//! archivist    read              sha256:9f86d081884c7d659a2feaa0c55ad015a3bf4f1b2b0b822cd15d6c15b0f00a08
+//! studio-a     read,write        sha256:…
+//! ops          read,write,admin  sha256:…
+//! ```
+//!
+//! Scopes: `read` (query, get, export, list, classify, generate and the
+//! other model endpoints), `write` (ingest, delete), `admin` (the audit
+//! trail). Only hashes are kept; a presented token is hashed and compared
+//! with every entry in constant time. The file is read again when it
+//! changes (checked twice a second), so a line removed is a token revoked
+//! within half a second; a file that no longer parses keeps the tokens in
+//! force and logs why. Secrets never reach a log line.
+//!
+//! Reads without a token are refused unless the server was started with
+//! `--public-read`.
+
+use super::ApiError;
+use sha2::{Digest, Sha256};
+use std::collections::HashMap;
+use std::net::IpAddr;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::{Duration, Instant, SystemTime};
+
+/// What a request needs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scope {
+    Read = 1,
+    Write = 2,
+    Admin = 4,
+}
+
+impl Scope {
+    pub fn name(self) -> &'static str {
+        match self {
+            Scope::Read => "read",
+            Scope::Write => "write",
+            Scope::Admin => "admin",
+        }
+    }
+    fn parse(s: &str) -> Option<Scope> {
+        match s {
+            "read" => Some(Scope::Read),
+            "write" => Some(Scope::Write),
+            "admin" => Some(Scope::Admin),
+            _ => None,
+        }
+    }
+}
+
+const ALL_SCOPES: u8 = Scope::Read as u8 | Scope::Write as u8 | Scope::Admin as u8;
+
+#[derive(Clone, Debug)]
+struct Entry {
+    name: String,
+    scopes: u8,
+    hash: [u8; 32],
+}
+
+/// Who a request is: a token's name (never the token), or `anonymous`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Principal {
+    pub name: String,
+    scopes: u8,
+}
+
+impl Principal {
+    pub fn anonymous() -> Self {
+        Principal {
+            name: "anonymous".into(),
+            scopes: Scope::Read as u8,
+        }
+    }
+    pub fn may(&self, s: Scope) -> bool {
+        self.scopes & s as u8 != 0
+    }
+}
+
+/// `sha256:<hex>` of a token: what a token file holds.
+pub fn hash_token(token: &str) -> String {
+    let d = Sha256::digest(token.as_bytes());
+    format!(
+        "sha256:{}",
+        d.iter().map(|b| format!("{b:02x}")).collect::<String>()
+    )
+}
+
+fn digest(token: &str) -> [u8; 32] {
+    Sha256::digest(token.as_bytes()).into()
+}
+
+/// Parse a token file; errors name the file and the line.
+pub fn parse_tokens(file: &str, text: &str) -> Result<Vec<(String, u8, [u8; 32])>, String> {
+    let mut out: Vec<(String, u8, [u8; 32])> = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.split('#').next().unwrap_or("").trim();
+        if line.is_empty() {
+            continue;
+        }
+        let at = |why: String| format!("{file}: line {}: {why}", i + 1);
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        let [name, scopes, secret] = fields.as_slice() else {
+            return Err(at(format!(
+                "expected `name scopes sha256:<hex>`, found {} fields",
+                fields.len()
+            )));
+        };
+        if !name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_.@".contains(c))
+        {
+            return Err(at(format!(
+                "name {name:?}: letters, digits and - _ . @ only"
+            )));
+        }
+        if out.iter().any(|e| e.0 == *name) {
+            return Err(at(format!("name {name:?} is given twice")));
+        }
+        let mut bits = 0u8;
+        for s in scopes.split(',') {
+            bits |= Scope::parse(s)
+                .ok_or_else(|| at(format!("unknown scope {s:?} (read, write, admin)")))?
+                as u8;
+        }
+        let hex = secret.strip_prefix("sha256:").ok_or_else(|| {
+            at("the secret must be `sha256:<64 hex digits>`, never the token itself".into())
+        })?;
+        if hex.len() != 64 || !hex.chars().all(|c| c.is_ascii_hexdigit()) {
+            return Err(at("the secret must be `sha256:<64 hex digits>`".into()));
+        }
+        let mut h = [0u8; 32];
+        for (k, b) in h.iter_mut().enumerate() {
+            *b = u8::from_str_radix(&hex[2 * k..2 * k + 2], 16).expect("hex checked");
+        }
+        if out.iter().any(|e| e.2 == h) {
+            return Err(at("the same secret is given to two names".into()));
+        }
+        out.push((name.to_string(), bits, h));
+    }
+    Ok(out)
+}
+
+/// Token buckets keyed by client.
+struct Limiter {
+    rate: f64,
+    burst: f64,
+    buckets: Mutex<HashMap<String, (f64, Instant)>>,
+}
+
+impl Limiter {
+    /// `Ok` to go ahead, or the seconds until a request would be allowed.
+    fn take(&self, key: &str) -> Result<(), f64> {
+        if self.rate <= 0.0 {
+            return Ok(());
+        }
+        let now = Instant::now();
+        let mut b = self.buckets.lock().expect("buckets");
+        if b.len() > 100_000 {
+            // Forget clients idle long enough to be full again.
+            let full = self.burst / self.rate;
+            b.retain(|_, (_, t)| now.duration_since(*t).as_secs_f64() < full);
+        }
+        let (tokens, last) = b.entry(key.to_string()).or_insert((self.burst, now));
+        *tokens = (*tokens + now.duration_since(*last).as_secs_f64() * self.rate).min(self.burst);
+        *last = now;
+        if *tokens >= 1.0 {
+            *tokens -= 1.0;
+            Ok(())
+        } else {
+            Err((1.0 - *tokens) / self.rate)
+        }
+    }
+}
+
+/// The server's access rules.
+pub struct Auth {
+    entries: RwLock<Vec<Entry>>,
+    public_read: bool,
+    file: Option<(PathBuf, Mutex<Option<SystemTime>>)>,
+    limiter: Limiter,
+}
+
+/// How [`Auth`] is configured (the server's flags).
+#[derive(Clone, Debug, Default)]
+pub struct AuthConfig {
+    /// `--token`: one token with every scope, named `token`.
+    pub token: Option<String>,
+    /// `--tokens FILE`.
+    pub tokens_file: Option<PathBuf>,
+    /// `--public-read`: reads need no token.
+    pub public_read: bool,
+    /// `--rate-limit`: requests per second per client (0 = no limit).
+    pub rate_limit: f64,
+    /// `--rate-burst`: the bucket's size.
+    pub rate_burst: f64,
+}
+
+impl Auth {
+    pub fn new(cfg: &AuthConfig) -> Result<Auth, String> {
+        let mut entries = Vec::new();
+        if let Some(t) = cfg.token.as_deref().filter(|t| !t.is_empty()) {
+            entries.push(Entry {
+                name: "token".into(),
+                scopes: ALL_SCOPES,
+                hash: digest(t),
+            });
+        }
+        let file = match &cfg.tokens_file {
+            Some(p) => {
+                let (list, mtime) = read_file(p)?;
+                for (name, scopes, hash) in list {
+                    if entries.iter().any(|e| e.name == name) {
+                        return Err(format!(
+                            "{}: the name {name:?} is taken by --token",
+                            p.display()
+                        ));
+                    }
+                    entries.push(Entry { name, scopes, hash });
+                }
+                Some((p.clone(), Mutex::new(mtime)))
+            }
+            None => None,
+        };
+        if !(cfg.rate_limit.is_finite() && cfg.rate_limit >= 0.0) {
+            return Err(format!("--rate-limit: {} is not a rate", cfg.rate_limit));
+        }
+        Ok(Auth {
+            entries: RwLock::new(entries),
+            public_read: cfg.public_read,
+            file,
+            limiter: Limiter {
+                rate: cfg.rate_limit,
+                burst: cfg.rate_burst.max(1.0),
+                buckets: Mutex::new(HashMap::new()),
+            },
+        })
+    }
+
+    /// Whether any token is configured.
+    pub fn has_tokens(&self) -> bool {
+        !self.entries.read().expect("tokens").is_empty()
+    }
+    pub fn public_read(&self) -> bool {
+        self.public_read
+    }
+
+    /// Read the token file again if it changed. Called twice a second by
+    /// the server.
+    pub fn reload(&self) {
+        let Some((path, seen)) = &self.file else {
+            return;
+        };
+        let mtime = std::fs::metadata(path).and_then(|m| m.modified()).ok();
+        let mut seen = seen.lock().expect("mtime");
+        if mtime == *seen {
+            return;
+        }
+        *seen = mtime;
+        match read_file(path) {
+            Ok((list, _)) => {
+                let mut e = self.entries.write().expect("tokens");
+                let keep_flag: Vec<Entry> =
+                    e.iter().filter(|x| x.name == "token").cloned().collect();
+                *e = keep_flag;
+                let n = list.len();
+                e.extend(
+                    list.into_iter()
+                        .map(|(name, scopes, hash)| Entry { name, scopes, hash }),
+                );
+                tracing::info!("token file {} read again: {n} tokens", path.display());
+            }
+            Err(why) => tracing::error!("token file not reloaded, the old tokens stay: {why}"),
+        }
+    }
+
+    /// Who presents `presented` (the bearer token, if any), allowed `need`?
+    /// 401 without a usable token (unless reads are public), 403 with one
+    /// that lacks the scope.
+    pub fn authorize(&self, presented: Option<&str>, need: Scope) -> Result<Principal, ApiError> {
+        if !self.has_tokens() {
+            // No tokens at all: a presented one means nothing.
+            if need == Scope::Read && self.public_read {
+                return Ok(Principal::anonymous());
+            }
+            return Err(ApiError::PermissionDenied(format!(
+                "{} requests are switched off: start the server with --token (CHOREO_TOKEN) or --tokens",
+                need.name()
+            )));
+        }
+        let Some(tok) = presented else {
+            if need == Scope::Read && self.public_read {
+                return Ok(Principal::anonymous());
+            }
+            return Err(ApiError::Unauthenticated(format!(
+                "this request needs `{}` access: send the header `Authorization: Bearer <token>`",
+                need.name()
+            )));
+        };
+        let h = digest(tok);
+        let entries = self.entries.read().expect("tokens");
+        // Compare with every entry, without stopping at a match.
+        let mut found: Option<&Entry> = None;
+        for e in entries.iter() {
+            let eq = e
+                .hash
+                .iter()
+                .zip(h.iter())
+                .fold(0u8, |a, (x, y)| a | (x ^ y))
+                == 0;
+            if eq {
+                found = Some(e);
+            }
+        }
+        let Some(e) = found else {
+            return Err(ApiError::Unauthenticated(
+                "the bearer token is not known (wrong or revoked)".into(),
+            ));
+        };
+        let p = Principal {
+            name: e.name.clone(),
+            scopes: e.scopes,
+        };
+        if !p.may(need) {
+            return Err(ApiError::PermissionDenied(format!(
+                "the token {:?} has no `{}` scope",
+                p.name,
+                need.name()
+            )));
+        }
+        Ok(p)
+    }
+
+    /// Take one request from the caller's bucket: a token's name, or the
+    /// address of an anonymous caller. `Err(seconds)` when it is empty.
+    pub fn admit(&self, who: &Principal, addr: Option<IpAddr>) -> Result<(), ApiError> {
+        let key = if who.name == "anonymous" {
+            format!("addr:{}", addr.map_or("unknown".into(), |a| a.to_string()))
+        } else {
+            format!("token:{}", who.name)
+        };
+        self.limiter
+            .take(&key)
+            .map_err(|wait| ApiError::RateLimited {
+                reason: format!(
+                    "{} is over its limit of {} requests/s; retry after {:.1} s",
+                    if who.name == "anonymous" {
+                        "this address".to_string()
+                    } else {
+                        format!("token {:?}", who.name)
+                    },
+                    self.limiter.rate,
+                    wait
+                ),
+                retry_after_s: wait.ceil().max(1.0) as u64,
+            })
+    }
+}
+
+fn read_file(p: &Path) -> Result<(Vec<(String, u8, [u8; 32])>, Option<SystemTime>), String> {
+    let name = p.display().to_string();
+    let text = std::fs::read_to_string(p).map_err(|e| format!("{name}: {e}"))?;
+    let mtime = std::fs::metadata(p).and_then(|m| m.modified()).ok();
+    Ok((parse_tokens(&name, &text)?, mtime))
+}
+
+/// Reload the token file twice a second for as long as `auth` lives.
+pub fn spawn_reloader(auth: Arc<Auth>) {
+    if auth.file.is_none() {
+        return;
+    }
+    let weak = Arc::downgrade(&auth);
+    drop(auth);
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_millis(500));
+        loop {
+            tick.tick().await;
+            match weak.upgrade() {
+                Some(a) => a.reload(),
+                None => return,
+            }
+        }
+    });
+}
+
+/// The scope a REST route needs.
+pub fn rest_scope(method: &axum::http::Method, path: &str) -> Option<Scope> {
+    use axum::http::Method;
+    if !path.starts_with("/v1/") {
+        return None;
+    }
+    Some(match (method, path) {
+        (&Method::POST, "/v1/motions") => Scope::Write,
+        (&Method::DELETE, p) if p.starts_with("/v1/motions/") => Scope::Write,
+        (_, p) if p.starts_with("/v1/audit") => Scope::Admin,
+        _ => Scope::Read,
+    })
+}
+
+/// The scope a gRPC method needs (`/choreo.v1.Choreo/IngestMotion`).
+pub fn grpc_scope(path: &str) -> Option<Scope> {
+    let method = path.strip_prefix("/choreo.v1.Choreo/")?;
+    Some(match method {
+        "IngestMotion" | "DeleteMotion" => Scope::Write,
+        "ListAudit" => Scope::Admin,
+        _ => Scope::Read,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn file(lines: &str) -> Result<Vec<(String, u8, [u8; 32])>, String> {
+        parse_tokens("tokens.txt", lines)
+    }
+
+    #[test]
+    fn token_files_refuse_bad_lines_by_number() {
+        let h = hash_token("s3cret");
+        assert!(file(&format!("# c\n\na read {h}\n")).is_ok());
+        let e = file(&format!("a read {h}\nb reed {}\n", hash_token("x"))).unwrap_err();
+        assert!(e.contains("line 2") && e.contains("reed"), "{e}");
+        let e = file(&format!("a read {h}\na write {}\n", hash_token("x"))).unwrap_err();
+        assert!(e.contains("line 2") && e.contains("twice"), "{e}");
+        let e = file("a read s3cret\n").unwrap_err();
+        assert!(e.contains("line 1") && e.contains("sha256"), "{e}");
+        let e = file("a read\n").unwrap_err();
+        assert!(e.contains("line 1") && e.contains("fields"), "{e}");
+        let e = file(&format!("a read {h}\nb write {h}\n")).unwrap_err();
+        assert!(e.contains("two names"), "{e}");
+    }
+
+    #[test]
+    fn scopes_public_reads_and_buckets() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t");
+        std::fs::write(
+            &p,
+            format!(
+                "r read {}\nw read,write {}\n",
+                hash_token("rt"),
+                hash_token("wt")
+            ),
+        )
+        .unwrap();
+        let a = Auth::new(&AuthConfig {
+            tokens_file: Some(p.clone()),
+            rate_limit: 2.0,
+            rate_burst: 2.0,
+            ..Default::default()
+        })
+        .unwrap();
+        assert_eq!(a.authorize(Some("rt"), Scope::Read).unwrap().name, "r");
+        assert!(matches!(
+            a.authorize(Some("rt"), Scope::Write),
+            Err(ApiError::PermissionDenied(_))
+        ));
+        assert!(matches!(
+            a.authorize(None, Scope::Read),
+            Err(ApiError::Unauthenticated(_))
+        ));
+        assert!(matches!(
+            a.authorize(Some("nope"), Scope::Read),
+            Err(ApiError::Unauthenticated(_))
+        ));
+        let w = a.authorize(Some("wt"), Scope::Write).unwrap();
+        assert!(a.admit(&w, None).is_ok() && a.admit(&w, None).is_ok());
+        match a.admit(&w, None) {
+            Err(ApiError::RateLimited { retry_after_s, .. }) => assert_eq!(retry_after_s, 1),
+            other => panic!("{other:?}"),
+        }
+        // Another client keeps its own bucket.
+        let r = a.authorize(Some("rt"), Scope::Read).unwrap();
+        assert!(a.admit(&r, None).is_ok());
+        // Revoked: the line removed, the file read again.
+        std::thread::sleep(Duration::from_millis(20));
+        std::fs::write(&p, format!("w read,write {}\n", hash_token("wt"))).unwrap();
+        let later = SystemTime::now() + Duration::from_secs(1);
+        std::fs::File::options()
+            .write(true)
+            .open(&p)
+            .unwrap()
+            .set_modified(later)
+            .unwrap();
+        a.reload();
+        assert!(matches!(
+            a.authorize(Some("rt"), Scope::Read),
+            Err(ApiError::Unauthenticated(_))
+        ));
+        let open = Auth::new(&AuthConfig {
+            public_read: true,
+            ..Default::default()
+        })
+        .unwrap();
+        assert_eq!(
+            open.authorize(None, Scope::Read).unwrap(),
+            Principal::anonymous()
+        );
+        assert!(matches!(
+            open.authorize(None, Scope::Write),
+            Err(ApiError::PermissionDenied(_))
+        ));
+    }
+}

@@ -1,0 +1,350 @@
+//! Who may do what, over both transports: scoped tokens from a token file,
+//! reads closed unless `--public-read`, a revoked token refused at once, the
+//! audit trail (token names and request ids, never secrets), per-client
+//! rate limits with Retry-After, and start-up refusals for bad settings.
+//! Runs on an empty store (no data needed): writes are inline motions.
+
+use choreo::api::auth::hash_token;
+use choreo::api::grpc::pb;
+use choreo::server::{start, ServeConfig};
+use serde_json::{json, Value};
+use std::io::{Read, Write};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+/// One request; returns (status, headers as lower-case text, JSON body).
+fn http(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    body: Option<&Value>,
+    token: Option<&str>,
+) -> (u16, String, Value) {
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    let b = body.map(|v| v.to_string()).unwrap_or_default();
+    let auth = token
+        .map(|t| format!("Authorization: Bearer {t}\r\n"))
+        .unwrap_or_default();
+    write!(
+        s,
+        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n{auth}Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}",
+        b.len()
+    )
+    .unwrap();
+    let mut out = Vec::new();
+    s.read_to_end(&mut out).unwrap();
+    let text = String::from_utf8_lossy(&out).to_string();
+    let status = text[9..12].parse().unwrap();
+    let (head, rest) = text.split_once("\r\n\r\n").unwrap();
+    (
+        status,
+        head.to_ascii_lowercase(),
+        serde_json::from_str(rest).unwrap_or(Value::Null),
+    )
+}
+
+fn header<'a>(head: &'a str, name: &str) -> Option<&'a str> {
+    head.lines()
+        .find_map(|l| l.strip_prefix(&format!("{name}: ")))
+        .map(str::trim)
+}
+
+fn config(dir: &Path, tokens: Option<PathBuf>, public_read: bool, rate: f64) -> ServeConfig {
+    ServeConfig {
+        data_dir: dir.join("data"),
+        bind: "127.0.0.1".into(),
+        http_port: 0,
+        grpc_port: 0,
+        max_body_mb: 16,
+        workers: 2,
+        ingest: vec![],
+        model: PathBuf::from("/nonexistent-model"),
+        token: None,
+        inbetweener: PathBuf::from("/nonexistent-inbetweener"),
+        cors_origins: vec![],
+        log_format: Default::default(),
+        hnsw_backend: choreo::index::hnsw::Backend::Flat,
+        runtime: choreo::lm::engine::Runtime::Tract,
+        ort_lib: None,
+        tokens,
+        public_read,
+        rate_limit: rate,
+        rate_burst: rate,
+    }
+}
+
+fn inline_motion(name: &str, phase: f64) -> Value {
+    let frames = 140;
+    let rotations: Vec<Vec<[f64; 3]>> = (0..frames)
+        .map(|f| {
+            (0..24)
+                .map(|j| [0.3 * ((f as f64) * 0.1 + phase + j as f64).sin(), 0.0, 0.1])
+                .collect()
+        })
+        .collect();
+    json!({"name": name, "fps": 60.0, "skeleton": "smpl24", "rotations": rotations,
+           "translation": vec![[0.0, 0.9, 0.0]; frames]})
+}
+
+fn tokens_file(dir: &Path) -> PathBuf {
+    let p = dir.join("tokens");
+    std::fs::write(
+        &p,
+        format!(
+            "# name scopes hash\nreader read {}\nwriter read,write {}\nops read,write,admin {}\n",
+            hash_token("reader-secret"),
+            hash_token("writer-secret"),
+            hash_token("ops-secret")
+        ),
+    )
+    .unwrap();
+    p
+}
+
+fn grpc_req<T>(msg: T, token: Option<&str>) -> tonic::Request<T> {
+    let mut r = tonic::Request::new(msg);
+    if let Some(t) = token {
+        r.metadata_mut()
+            .insert("authorization", format!("Bearer {t}").parse().unwrap());
+    }
+    r
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scoped_tokens_revocation_and_the_audit_trail_over_both_transports() {
+    let dir = tempfile::tempdir().unwrap();
+    let tokens = tokens_file(dir.path());
+    let running = start(&config(dir.path(), Some(tokens.clone()), false, 0.0))
+        .await
+        .unwrap();
+    let (h, g) = (running.http, running.grpc);
+    let m =
+        json!({"motion": {"motion": inline_motion("take_a", 0.0)}, "labels": {"session": "s1"}});
+    let tf = tokens.clone();
+    let (anon, read, read_write, written, del_read, audit_writer, audit_ops, health) =
+        tokio::task::spawn_blocking(move || {
+            let anon = http(h, "GET", "/v1/motions", None, None);
+            let read = http(h, "GET", "/v1/motions", None, Some("reader-secret"));
+            let read_write = http(h, "POST", "/v1/motions", Some(&m), Some("reader-secret"));
+            let written = http(h, "POST", "/v1/motions", Some(&m), Some("writer-secret"));
+            let id = written.2["motion_id"].as_i64().unwrap();
+            let del_read = http(
+                h,
+                "DELETE",
+                &format!("/v1/motions/{id}"),
+                None,
+                Some("reader-secret"),
+            );
+            let audit_writer = http(h, "GET", "/v1/audit", None, Some("writer-secret"));
+            let audit_ops = http(h, "GET", "/v1/audit?limit=10", None, Some("ops-secret"));
+            let health = http(h, "GET", "/healthz", None, None);
+            (
+                anon,
+                read,
+                read_write,
+                written,
+                del_read,
+                audit_writer,
+                audit_ops,
+                health,
+            )
+        })
+        .await
+        .unwrap();
+    // Reads are closed without --public-read; liveness stays open.
+    assert_eq!(anon.0, 401, "{}", anon.2);
+    assert_eq!(anon.2["error"]["code"], "unauthenticated");
+    assert_eq!(health.0, 200);
+    assert_eq!(read.0, 200, "{}", read.2);
+    // A read token cannot write.
+    assert_eq!(read_write.0, 403, "{}", read_write.2);
+    assert_eq!(read_write.2["error"]["code"], "permission_denied");
+    assert_eq!(written.0, 201, "{}", written.2);
+    assert_eq!(del_read.0, 403, "{}", del_read.2);
+    // The audit trail is admin's: the write with the token's name and the
+    // request id the answer carried, and no secret anywhere.
+    assert_eq!(audit_writer.0, 403);
+    assert_eq!(audit_ops.0, 200, "{}", audit_ops.2);
+    let entries = audit_ops.2["entries"].as_array().unwrap();
+    assert_eq!(entries.len(), 1, "{entries:?}");
+    assert_eq!(entries[0]["actor"], "writer");
+    assert_eq!(entries[0]["action"], "ingest");
+    let rid = header(&written.1, "x-request-id").unwrap();
+    assert_eq!(entries[0]["request_id"], rid);
+    let text = audit_ops.2.to_string();
+    assert!(!text.contains("secret"), "{text}");
+
+    // gRPC: the same rules.
+    let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
+        .await
+        .unwrap();
+    let e = client
+        .list_motions(grpc_req(pb::ListMotionsRequest::default(), None))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::Unauthenticated);
+    let listed = client
+        .list_motions(grpc_req(
+            pb::ListMotionsRequest::default(),
+            Some("reader-secret"),
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(listed.motions.len(), 1);
+    let id = listed.motions[0].id;
+    let e = client
+        .delete_motion(grpc_req(pb::MotionId { id }, Some("reader-secret")))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::PermissionDenied);
+    let mut del = grpc_req(pb::MotionId { id }, Some("ops-secret"));
+    del.metadata_mut()
+        .insert("x-request-id", "delete-by-ops-1".parse().unwrap());
+    client.delete_motion(del).await.unwrap();
+    let e = client
+        .list_audit(grpc_req(
+            pb::ListAuditRequest { limit: 5 },
+            Some("writer-secret"),
+        ))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::PermissionDenied);
+    let audit = client
+        .list_audit(grpc_req(
+            pb::ListAuditRequest { limit: 5 },
+            Some("ops-secret"),
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(audit.entries[0].action, "delete");
+    assert_eq!(audit.entries[0].actor, "ops");
+    assert_eq!(audit.entries[0].request_id, "delete-by-ops-1");
+    assert_eq!(audit.entries[0].target, format!("motion {id}"));
+
+    // Revoked: the reader's line removed; refused within a second.
+    std::fs::write(
+        &tf,
+        format!(
+            "writer read,write {}\nops read,write,admin {}\n",
+            hash_token("writer-secret"),
+            hash_token("ops-secret")
+        ),
+    )
+    .unwrap();
+    let later = std::time::SystemTime::now() + std::time::Duration::from_secs(2);
+    std::fs::File::options()
+        .write(true)
+        .open(&tf)
+        .unwrap()
+        .set_modified(later)
+        .unwrap();
+    tokio::time::sleep(std::time::Duration::from_millis(1200)).await;
+    let revoked = tokio::task::spawn_blocking(move || {
+        http(h, "GET", "/v1/motions", None, Some("reader-secret"))
+    })
+    .await
+    .unwrap();
+    assert_eq!(revoked.0, 401, "{}", revoked.2);
+    let e = client
+        .list_motions(grpc_req(
+            pb::ListMotionsRequest::default(),
+            Some("reader-secret"),
+        ))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::Unauthenticated);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_past_its_rate_gets_429_with_retry_after_and_others_keep_theirs() {
+    let dir = tempfile::tempdir().unwrap();
+    let tokens = tokens_file(dir.path());
+    let running = start(&config(dir.path(), Some(tokens), false, 5.0))
+        .await
+        .unwrap();
+    let h = running.http;
+    let g = running.grpc;
+    let (storm, polite) = tokio::task::spawn_blocking(move || {
+        let storm: Vec<(u16, String)> = (0..20)
+            .map(|_| {
+                let r = http(h, "GET", "/v1/motions", None, Some("reader-secret"));
+                (r.0, r.1)
+            })
+            .collect();
+        let polite = http(h, "GET", "/v1/motions", None, Some("writer-secret"));
+        (storm, polite)
+    })
+    .await
+    .unwrap();
+    let limited: Vec<&(u16, String)> = storm.iter().filter(|r| r.0 == 429).collect();
+    assert!(
+        limited.len() >= 10,
+        "{:?}",
+        storm.iter().map(|r| r.0).collect::<Vec<_>>()
+    );
+    for (_, head) in &limited {
+        let secs: u64 = header(head, "retry-after").unwrap().parse().unwrap();
+        assert!(secs >= 1, "{head}");
+    }
+    // Another token's bucket is untouched.
+    assert_eq!(polite.0, 200);
+    let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
+        .await
+        .unwrap();
+    let e = client
+        .list_motions(grpc_req(
+            pb::ListMotionsRequest::default(),
+            Some("reader-secret"),
+        ))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::ResourceExhausted);
+    assert!(e.metadata().get("retry-after").is_some());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_access_settings_stop_start_up_with_the_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    // Nothing configured: every request would be refused.
+    let e = start(&config(dir.path(), None, false, 0.0))
+        .await
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("--public-read") && e.contains("--tokens"), "{e}");
+    // A token file with an unknown scope: the line named.
+    let p = dir.path().join("bad");
+    std::fs::write(
+        &p,
+        format!(
+            "a read {}\nb read,delete {}\n",
+            hash_token("x"),
+            hash_token("y")
+        ),
+    )
+    .unwrap();
+    let e = format!(
+        "{:#}",
+        start(&config(dir.path(), Some(p.clone()), false, 0.0))
+            .await
+            .err()
+            .unwrap()
+    );
+    assert!(e.contains("line 2") && e.contains("delete"), "{e}");
+    // A duplicate name.
+    std::fs::write(
+        &p,
+        format!("a read {}\na write {}\n", hash_token("x"), hash_token("y")),
+    )
+    .unwrap();
+    let e = format!(
+        "{:#}",
+        start(&config(dir.path(), Some(p), false, 0.0))
+            .await
+            .err()
+            .unwrap()
+    );
+    assert!(e.contains("line 2") && e.contains("twice"), "{e}");
+}
