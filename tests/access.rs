@@ -8,11 +8,13 @@ use choreo::api::auth::hash_token;
 use choreo::api::grpc::pb;
 use choreo::server::{start, ServeConfig};
 use serde_json::{json, Value};
-use std::io::{Read, Write};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
+use support::header;
 
-/// One request; returns (status, headers as lower-case text, JSON body).
+mod support;
+
+/// One request; returns (status, lower-cased head, JSON body).
 fn http(
     addr: SocketAddr,
     method: &str,
@@ -20,56 +22,18 @@ fn http(
     body: Option<&Value>,
     token: Option<&str>,
 ) -> (u16, String, Value) {
-    let mut s = std::net::TcpStream::connect(addr).unwrap();
-    let b = body.map(|v| v.to_string()).unwrap_or_default();
-    let auth = token
-        .map(|t| format!("Authorization: Bearer {t}\r\n"))
-        .unwrap_or_default();
-    write!(
-        s,
-        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n{auth}Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}",
-        b.len()
-    )
-    .unwrap();
-    let mut out = Vec::new();
-    s.read_to_end(&mut out).unwrap();
-    let text = String::from_utf8_lossy(&out).to_string();
-    let status = text[9..12].parse().unwrap();
-    let (head, rest) = text.split_once("\r\n\r\n").unwrap();
-    (
-        status,
-        head.to_ascii_lowercase(),
-        serde_json::from_str(rest).unwrap_or(Value::Null),
-    )
-}
-
-fn header<'a>(head: &'a str, name: &str) -> Option<&'a str> {
-    head.lines()
-        .find_map(|l| l.strip_prefix(&format!("{name}: ")))
-        .map(str::trim)
+    support::exchange(addr, method, path, body, token).unwrap()
 }
 
 fn config(dir: &Path, tokens: Option<PathBuf>, public_read: bool, rate: f64) -> ServeConfig {
     ServeConfig {
-        data_dir: dir.join("data"),
-        bind: "127.0.0.1".into(),
-        http_port: 0,
-        grpc_port: 0,
-        max_body_mb: 16,
-        workers: 2,
-        ingest: vec![],
         model: PathBuf::from("/nonexistent-model"),
-        token: None,
         inbetweener: PathBuf::from("/nonexistent-inbetweener"),
-        cors_origins: vec![],
-        log_format: Default::default(),
-        hnsw_backend: choreo::index::hnsw::Backend::Flat,
-        runtime: choreo::lm::engine::Runtime::Tract,
-        ort_lib: None,
         tokens,
         public_read,
         rate_limit: rate,
         rate_burst: rate,
+        ..support::serve_config(&dir.join("data"))
     }
 }
 
@@ -314,37 +278,30 @@ async fn bad_access_settings_stop_start_up_with_the_reason() {
         .unwrap()
         .to_string();
     assert!(e.contains("--public-read") && e.contains("--tokens"), "{e}");
-    // A token file with an unknown scope: the line named.
+    // Bad token files: the line named, with the reason.
     let p = dir.path().join("bad");
-    std::fs::write(
-        &p,
-        format!(
-            "a read {}\nb read,delete {}\n",
-            hash_token("x"),
-            hash_token("y")
+    for (lines, why) in [
+        (
+            format!(
+                "a read {}\nb read,delete {}\n",
+                hash_token("x"),
+                hash_token("y")
+            ),
+            "delete",
         ),
-    )
-    .unwrap();
-    let e = format!(
-        "{:#}",
-        start(&config(dir.path(), Some(p.clone()), false, 0.0))
-            .await
-            .err()
-            .unwrap()
-    );
-    assert!(e.contains("line 2") && e.contains("delete"), "{e}");
-    // A duplicate name.
-    std::fs::write(
-        &p,
-        format!("a read {}\na write {}\n", hash_token("x"), hash_token("y")),
-    )
-    .unwrap();
-    let e = format!(
-        "{:#}",
-        start(&config(dir.path(), Some(p), false, 0.0))
-            .await
-            .err()
-            .unwrap()
-    );
-    assert!(e.contains("line 2") && e.contains("twice"), "{e}");
+        (
+            format!("a read {}\na write {}\n", hash_token("x"), hash_token("y")),
+            "twice",
+        ),
+    ] {
+        std::fs::write(&p, lines).unwrap();
+        let e = format!(
+            "{:#}",
+            start(&config(dir.path(), Some(p.clone()), false, 0.0))
+                .await
+                .err()
+                .unwrap()
+        );
+        assert!(e.contains("line 2") && e.contains(why), "{e}");
+    }
 }

@@ -8,31 +8,15 @@ use futures_util::{SinkExt, StreamExt};
 use serde_json::{json, Value};
 use std::io::{Read, Write};
 use std::net::SocketAddr;
-use std::path::PathBuf;
 use tokio_tungstenite::tungstenite::Message;
 
+mod support;
+
 fn config(dir: &std::path::Path, cors: &[&str]) -> ServeConfig {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     ServeConfig {
-        data_dir: dir.to_path_buf(),
-        bind: "127.0.0.1".into(),
-        http_port: 0,
-        grpc_port: 0,
-        max_body_mb: 64,
-        workers: 2,
-        ingest: vec![],
-        model: root.join("models/default"),
         token: Some("t0ken".into()),
-        inbetweener: root.join("models/inbetween"),
         cors_origins: cors.iter().map(|s| s.to_string()).collect(),
-        log_format: Default::default(),
-        hnsw_backend: choreo::index::hnsw::Backend::Flat,
-        runtime: choreo::lm::engine::Runtime::Tract,
-        ort_lib: None,
-        tokens: None,
-        public_read: true,
-        rate_limit: 0.0,
-        rate_burst: 20.0,
+        ..support::serve_config(dir)
     }
 }
 

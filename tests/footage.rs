@@ -15,53 +15,23 @@ use choreo::motion::keypoints::{
 };
 use choreo::server::{start, ServeConfig};
 use serde_json::{json, Value};
-use std::io::{Read, Write};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
+
+mod support;
 
 const TOKEN: &str = "footage-token";
 
 fn http(addr: SocketAddr, method: &str, path: &str, body: Option<&Value>) -> (u16, Value) {
-    let mut s = std::net::TcpStream::connect(addr).unwrap();
-    let b = body.map(|v| v.to_string()).unwrap_or_default();
-    write!(
-        s,
-        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nAuthorization: Bearer {TOKEN}\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}",
-        b.len()
-    )
-    .unwrap();
-    let mut out = Vec::new();
-    s.read_to_end(&mut out).unwrap();
-    let text = String::from_utf8_lossy(&out).to_string();
-    let status: u16 = text[9..12].parse().unwrap();
-    let (_, rest) = text.split_once("\r\n\r\n").unwrap();
-    (
-        status,
-        serde_json::from_str(rest).unwrap_or(Value::String(rest.into())),
-    )
+    let (status, _, v) = support::exchange(addr, method, path, body, Some(TOKEN)).unwrap();
+    (status, v)
 }
 
 fn config(dir: &Path, ingest: Vec<PathBuf>) -> ServeConfig {
     ServeConfig {
-        data_dir: dir.to_path_buf(),
-        bind: "127.0.0.1".into(),
-        http_port: 0,
-        grpc_port: 0,
-        max_body_mb: 64,
-        workers: 2,
         ingest,
-        model: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/default"),
         token: Some(TOKEN.into()),
-        inbetweener: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/inbetween"),
-        cors_origins: vec![],
-        log_format: Default::default(),
-        hnsw_backend: choreo::index::hnsw::Backend::Flat,
-        runtime: choreo::lm::engine::Runtime::Tract,
-        ort_lib: None,
-        tokens: None,
-        public_read: true,
-        rate_limit: 0.0,
-        rate_burst: 20.0,
+        ..support::serve_config(dir)
     }
 }
 

@@ -12,6 +12,8 @@ use std::io::{Read, Write};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
+mod support;
+
 /// One HTTP/1.1 request over a fresh connection; returns (status, JSON body).
 fn http(addr: SocketAddr, method: &str, path: &str, body: Option<&Value>) -> (u16, Value) {
     http_as(addr, method, path, body, None)
@@ -37,51 +39,7 @@ fn try_http(
     body: Option<&Value>,
     token: Option<&str>,
 ) -> std::io::Result<(u16, Value)> {
-    let bad = |what: &str| std::io::Error::new(std::io::ErrorKind::InvalidData, what.to_string());
-    let mut s = std::net::TcpStream::connect(addr)?;
-    let b = body.map(|v| v.to_string()).unwrap_or_default();
-    let auth = token
-        .map(|t| format!("Authorization: Bearer {t}\r\n"))
-        .unwrap_or_default();
-    write!(
-        s,
-        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n{auth}Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{b}",
-        b.len()
-    )?;
-    let mut out = Vec::new();
-    s.read_to_end(&mut out)?;
-    let text = String::from_utf8_lossy(&out).to_string();
-    let status: u16 = text
-        .get(9..12)
-        .and_then(|c| c.parse().ok())
-        .ok_or_else(|| bad("no status line"))?;
-    let (head, rest) = text
-        .split_once("\r\n\r\n")
-        .ok_or_else(|| bad("no end of headers"))?;
-    // Chunked bodies: join the chunks.
-    let body = if head
-        .to_ascii_lowercase()
-        .contains("transfer-encoding: chunked")
-    {
-        let mut out = String::new();
-        let mut r = rest;
-        loop {
-            let (len, tail) = r.split_once("\r\n").ok_or_else(|| bad("chunk"))?;
-            let n = usize::from_str_radix(len.trim(), 16).map_err(|_| bad("chunk length"))?;
-            if n == 0 {
-                break;
-            }
-            out.push_str(tail.get(..n).ok_or_else(|| bad("short chunk"))?);
-            r = tail.get(n + 2..).ok_or_else(|| bad("short chunk"))?;
-        }
-        out
-    } else {
-        rest.to_string()
-    };
-    Ok((
-        status,
-        serde_json::from_str(&body).unwrap_or(Value::String(body)),
-    ))
+    support::exchange(addr, method, path, body, token).map(|(s, _, v)| (s, v))
 }
 
 /// `[frames][joints][3]` JSON rotations as gRPC's flat array.
@@ -107,25 +65,9 @@ fn upload(name: &str, content: Vec<u8>) -> pb::MotionSource {
 
 fn config(dir: &std::path::Path, ingest: Vec<PathBuf>) -> ServeConfig {
     ServeConfig {
-        data_dir: dir.to_path_buf(),
-        bind: "127.0.0.1".into(),
-        http_port: 0,
-        grpc_port: 0,
-        max_body_mb: 64,
-        workers: 2,
         ingest,
-        model: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/default"),
         token: Some(TOKEN.into()),
-        inbetweener: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/inbetween"),
-        cors_origins: vec![],
-        log_format: Default::default(),
-        hnsw_backend: choreo::index::hnsw::Backend::Flat,
-        runtime: choreo::lm::engine::Runtime::Tract,
-        ort_lib: None,
-        tokens: None,
-        public_read: true,
-        rate_limit: 0.0,
-        rate_burst: 20.0,
+        ..support::serve_config(dir)
     }
 }
 

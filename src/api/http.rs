@@ -508,9 +508,18 @@ async fn require_scope(
             req.extensions_mut().insert(who);
             next.run(req).await
         }
-        Err(e) => e.into_response(),
+        Err(e) => {
+            // Read (and drop) a small body before answering, so that a
+            // client still sending it gets the answer rather than a reset
+            // connection; a large one is not read for a caller refused.
+            let _ = axum::body::to_bytes(req.into_body(), REFUSED_BODY_DRAIN).await;
+            e.into_response()
+        }
     }
 }
+
+/// Bytes of a refused request's body read before the answer.
+const REFUSED_BODY_DRAIN: usize = 4 << 20;
 
 /// Sampling settings as JSON, all optional. Without a temperature the
 /// request gets the recommended setting (`lm::generate::RECOMMENDED`), with

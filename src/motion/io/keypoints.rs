@@ -20,12 +20,14 @@ use crate::motion::keypoints::{Keypoints, Layout};
 use crate::motion::MotionError;
 use serde_json::Value;
 
-fn check_fps(file: &str, fps: Option<f64>) -> Result<f64, MotionError> {
+/// The frame rate a file from video must be given; `what` says whose
+/// (`keypoint files need`, …).
+pub(crate) fn check_fps(file: &str, fps: Option<f64>, what: &str) -> Result<f64, MotionError> {
     let fps = fps.ok_or_else(|| {
         MotionError::invalid(
             file,
             "fps",
-            "missing: keypoint files need their frame rate (--source-fps, API `fps`)",
+            format!("missing: {what} (--source-fps, API `fps`)"),
         )
     })?;
     if !(fps.is_finite() && fps > 0.0 && fps <= MAX_FPS) {
@@ -75,7 +77,7 @@ pub fn read_npy(
             format!("{t} frames is not in 1..={MAX_FRAMES}"),
         ));
     }
-    let fps = check_fps(file, fps)?;
+    let fps = check_fps(file, fps, "keypoint files need their frame rate")?;
     let mut points = Vec::with_capacity(t * k);
     let mut confidence = Vec::with_capacity(t * k);
     for (i, row) in a.data.chunks_exact(c).enumerate() {
@@ -152,7 +154,11 @@ pub fn read_json(
                 .ok_or_else(|| MotionError::invalid(file, "fps", "is not a number"))?,
         ),
     };
-    let fps = check_fps(file, fps.or(file_fps))?;
+    let fps = check_fps(
+        file,
+        fps.or(file_fps),
+        "keypoint files need their frame rate",
+    )?;
     let frames = o
         .get("frames")
         .and_then(Value::as_array)

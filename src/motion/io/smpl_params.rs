@@ -20,7 +20,7 @@
 
 use super::npy::NdArray;
 use super::pickle::{self, dict_get, Value};
-use crate::motion::clip::{Labels, Motion, MAX_FPS, MAX_FRAMES};
+use crate::motion::clip::{Labels, Motion, MAX_FRAMES};
 use crate::motion::keypoints::{bridge, FootageReport, Up};
 use crate::motion::labels;
 use crate::motion::rotation::*;
@@ -84,20 +84,11 @@ fn build(
     fps: Option<f64>,
     up: Option<Up>,
 ) -> Result<(Motion, FootageReport), MotionError> {
-    let fps = fps.ok_or_else(|| {
-        MotionError::invalid(
-            file,
-            "fps",
-            "missing: SMPL parameters from video carry no frame rate (--source-fps, API `fps`)",
-        )
-    })?;
-    if !(fps.is_finite() && fps > 0.0 && fps <= MAX_FPS) {
-        return Err(MotionError::invalid(
-            file,
-            "fps",
-            format!("{fps} is not in (0, {MAX_FPS}]"),
-        ));
-    }
+    let fps = super::keypoints::check_fps(
+        file,
+        fps,
+        "SMPL parameters from video carry no frame rate; give one",
+    )?;
     // (frames, rotations [T][24], trans key, default up)
     let (t, rots, trans_key, default_up) = if let Some(p) = get("pose_world") {
         let (t, _, r) = rotations(file, "pose_world", &p, &[24])?;
