@@ -208,6 +208,10 @@ enum Cmd {
         /// Video time of the file's first frame, seconds.
         #[arg(long, requires = "video", allow_hyphen_values = true)]
         video_offset: Option<f64>,
+        /// The collection the motions go into (created if missing; the
+        /// command line has the whole store).
+        #[arg(long, default_value = "default")]
+        collection: String,
         #[arg(long)]
         json: bool,
         #[command(flatten)]
@@ -687,6 +691,7 @@ fn run(cli: Cli) -> Result<()> {
             keep_files,
             video,
             video_offset,
+            collection,
             json,
             read,
         } => {
@@ -708,6 +713,7 @@ fn run(cli: Cli) -> Result<()> {
                     video,
                     video_offset_s: video_offset.unwrap_or(0.0),
                 }),
+                collection,
                 ..Default::default()
             };
             runtime()?.block_on(ingest(paths, db, opts, json))
@@ -744,6 +750,7 @@ fn run(cli: Cli) -> Result<()> {
                 metric,
                 filters,
                 exact,
+                collections: None,
             };
             runtime()?.block_on(query(db, req, json))
         }
@@ -955,6 +962,10 @@ async fn ingest(paths: Vec<PathBuf>, db: PathBuf, opts: IngestOptions, json: boo
         bail!("--hop must be at least 1");
     }
     let store = Store::open(&db).await?;
+    if !choreo::api::auth::valid_collection_name(&opts.collection) {
+        bail!("--collection: 1 to 64 letters, digits and - _ . only");
+    }
+    store.create_collection(&opts.collection).await?;
     let files = choreo::service::ingest::collect_files_with(&paths, &opts.read);
     let bar = indicatif::ProgressBar::new(files.len() as u64);
     bar.set_style(

@@ -305,3 +305,201 @@ async fn bad_access_settings_stop_start_up_with_the_reason() {
         assert!(e.contains("line 2") && e.contains(why), "{e}");
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_token_of_collection_a_never_sees_collection_b() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("tokens");
+    std::fs::write(
+        &p,
+        format!(
+            "a-reader read a {}\na-writer read,write a {}\nb-reader read b {}\nops read,write,admin * {}\n",
+            hash_token("ar"),
+            hash_token("aw"),
+            hash_token("br"),
+            hash_token("ops")
+        ),
+    )
+    .unwrap();
+    let running = start(&config(dir.path(), Some(p), false, 0.0))
+        .await
+        .unwrap();
+    let (h, g) = (running.http, running.grpc);
+    let x = inline_motion("take_x", 0.0);
+    let y = inline_motion("take_y", 1.7);
+    let (ca, cb, into_b, into_nope, xa) = {
+        let x = x.clone();
+        tokio::task::spawn_blocking(move || {
+            let ca = http(
+                h,
+                "POST",
+                "/v1/collections",
+                Some(&json!({"name": "a"})),
+                Some("ops"),
+            );
+            let cb = http(
+                h,
+                "POST",
+                "/v1/collections",
+                Some(&json!({"name": "b"})),
+                Some("ops"),
+            );
+            let body = |c: &str| json!({"motion": {"motion": x}, "collection": c});
+            let into_b = http(h, "POST", "/v1/motions", Some(&body("b")), Some("aw"));
+            let into_nope = http(h, "POST", "/v1/motions", Some(&body("nope")), Some("aw"));
+            let xa = http(h, "POST", "/v1/motions", Some(&body("a")), Some("aw"));
+            (ca, cb, into_b, into_nope, xa)
+        })
+        .await
+        .unwrap()
+    };
+    assert_eq!(ca.0, 201, "{}", ca.2);
+    assert_eq!(cb.0, 201, "{}", cb.2);
+    // A collection not granted and one that does not exist: the same 404.
+    assert_eq!(into_b.0, 404, "{}", into_b.2);
+    assert_eq!(into_nope.0, 404, "{}", into_nope.2);
+    assert_eq!(into_b.2["error"]["field"], "collection");
+    assert_eq!(xa.0, 201, "{}", xa.2);
+    let x_id = xa.2["motion_id"].as_i64().unwrap();
+    // Y goes into B over gRPC.
+    let mut client = pb::choreo_client::ChoreoClient::connect(format!("http://{g}"))
+        .await
+        .unwrap();
+    let rot: Vec<f64> = y["rotations"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|f| {
+            f.as_array()
+                .unwrap()
+                .iter()
+                .flat_map(|j| j.as_array().unwrap().iter().map(|v| v.as_f64().unwrap()))
+        })
+        .collect();
+    let y_id = client
+        .ingest_motion(grpc_req(
+            pb::IngestRequest {
+                motion: Some(pb::MotionSource {
+                    source: Some(pb::motion_source::Source::Motion(pb::Motion {
+                        fps: 60.0,
+                        skeleton: "smpl24".into(),
+                        rotations: rot,
+                        translation: vec![0.0, 0.9, 0.0].repeat(140),
+                        name: "take_y".into(),
+                        ..Default::default()
+                    })),
+                }),
+                collection: "b".into(),
+                ..Default::default()
+            },
+            Some("ops"),
+        ))
+        .await
+        .unwrap()
+        .into_inner()
+        .motion_id;
+
+    let q_x = json!({"motion": {"motion": x}, "start_s": 0.1, "k": 10, "exact": true, "embedding": "dct"});
+    let (list_a, get_y, bvh_y, query_y, hits_a, list_b) = {
+        let q_x = q_x.clone();
+        tokio::task::spawn_blocking(move || {
+            (
+                http(h, "GET", "/v1/motions", None, Some("ar")),
+                http(h, "GET", &format!("/v1/motions/{y_id}"), None, Some("ar")),
+                http(
+                    h,
+                    "GET",
+                    &format!("/v1/motions/{y_id}/bvh"),
+                    None,
+                    Some("ar"),
+                ),
+                http(
+                    h,
+                    "POST",
+                    "/v1/query",
+                    Some(&json!({"motion": {"id": y_id}})),
+                    Some("ar"),
+                ),
+                http(h, "POST", "/v1/query", Some(&q_x), Some("ar")),
+                http(h, "GET", "/v1/motions", None, Some("br")),
+            )
+        })
+        .await
+        .unwrap()
+    };
+    let ids = |v: &Value| -> Vec<i64> {
+        v["motions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|m| m["id"].as_i64().unwrap())
+            .collect()
+    };
+    assert_eq!(ids(&list_a.2), vec![x_id]);
+    assert_eq!(ids(&list_b.2), vec![y_id]);
+    assert_eq!(list_a.2["motions"][0]["collection"], "a");
+    for r in [&get_y, &bvh_y, &query_y] {
+        assert_eq!(r.0, 404, "{}", r.2);
+    }
+    assert_eq!(hits_a.0, 200, "{}", hits_a.2);
+    let hits = hits_a.2["hits"].as_array().unwrap();
+    assert!(!hits.is_empty());
+    assert!(hits.iter().all(|h| h["motion_id"] == x_id), "{hits:?}");
+    // gRPC: the same view.
+    let listed = client
+        .list_motions(grpc_req(pb::ListMotionsRequest::default(), Some("ar")))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(
+        listed.motions.iter().map(|m| m.id).collect::<Vec<_>>(),
+        vec![x_id]
+    );
+    let e = client
+        .get_motion(grpc_req(pb::MotionId { id: y_id }, Some("ar")))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::NotFound);
+    let cols = client
+        .list_collections(grpc_req(pb::ListCollectionsRequest::default(), Some("ar")))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(cols.names, vec!["a".to_string()]);
+
+    // The same query in a store that holds only X gives the same hits.
+    let dir2 = tempfile::tempdir().unwrap();
+    let only = start(&config(
+        dir2.path(),
+        Some(tokens_file(dir2.path())),
+        false,
+        0.0,
+    ))
+    .await
+    .unwrap();
+    let h2 = only.http;
+    let hits_only = tokio::task::spawn_blocking(move || {
+        let put = json!({"motion": {"motion": x}});
+        assert_eq!(
+            http(h2, "POST", "/v1/motions", Some(&put), Some("writer-secret")).0,
+            201
+        );
+        http(h2, "POST", "/v1/query", Some(&q_x), Some("reader-secret"))
+    })
+    .await
+    .unwrap();
+    let key = |v: &Value| -> Vec<(i64, String)> {
+        v["hits"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|h| {
+                (
+                    h["start_frame"].as_i64().unwrap(),
+                    format!("{:.6}", h["score"].as_f64().unwrap()),
+                )
+            })
+            .collect()
+    };
+    assert_eq!(key(&hits_a.2), key(&hits_only.2));
+}

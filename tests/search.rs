@@ -50,6 +50,7 @@ fn req(m: &Motion, start_s: f64, e: Embedding, metric: Metric) -> QueryRequest {
         metric,
         filters: vec![],
         exact: false,
+        collections: None,
     }
 }
 

@@ -5,11 +5,14 @@
 //! from a token file (`--tokens FILE`), one per line:
 //!
 //! ```text
-//! # name       scopes            secret (SHA-256 of the token, hex)
-//! archivist    read              sha256:9f86d081884c7d659a2feaa0c55ad015a3bf4f1b2b0b822cd15d6c15b0f00a08
-//! studio-a     read,write        sha256:…
-//! ops          read,write,admin  sha256:…
+//! # name       scopes            collections      secret (SHA-256 of the token, hex)
+//! archivist    read              *                sha256:9f86d081884c7d659a2feaa0c55ad015a3bf4f1b2b0b822cd15d6c15b0f00a08
+//! studio-a     read,write        company-a,prod1  sha256:…
+//! ops          read,write,admin  *                sha256:…
 //! ```
+//!
+//! A token sees (and writes) only its collections; `*` is every one. A
+//! three-field line (no collections) means `*`.
 //!
 //! Scopes: `read` (query, get, export, list, classify, generate and the
 //! other model endpoints), `write` (ingest, delete), `admin` (the audit
@@ -58,10 +61,14 @@ impl Scope {
 
 const ALL_SCOPES: u8 = Scope::Read as u8 | Scope::Write as u8 | Scope::Admin as u8;
 
+/// A token file line: name, scopes, collections (`None` = all), hash.
+pub type TokenLine = (String, u8, Option<Vec<String>>, [u8; 32]);
+
 #[derive(Clone, Debug)]
 struct Entry {
     name: String,
     scopes: u8,
+    collections: Option<Vec<String>>,
     hash: [u8; 32],
 }
 
@@ -70,17 +77,36 @@ struct Entry {
 pub struct Principal {
     pub name: String,
     scopes: u8,
+    /// The collections it may see and write; `None` = all.
+    pub collections: Option<Vec<String>>,
 }
 
 impl Principal {
+    /// A caller without a token, under `--public-read`: reads everything.
     pub fn anonymous() -> Self {
         Principal {
             name: "anonymous".into(),
             scopes: Scope::Read as u8,
+            collections: None,
+        }
+    }
+    /// Every scope and collection: the server's own callers (the CLI's
+    /// local store access, start-up ingest).
+    pub fn internal() -> Self {
+        Principal {
+            name: "internal".into(),
+            scopes: ALL_SCOPES,
+            collections: None,
         }
     }
     pub fn may(&self, s: Scope) -> bool {
         self.scopes & s as u8 != 0
+    }
+    /// Whether it may see (and, with `write`, write) this collection.
+    pub fn sees(&self, collection: &str) -> bool {
+        self.collections
+            .as_ref()
+            .is_none_or(|cs| cs.iter().any(|c| c == collection))
     }
 }
 
@@ -98,8 +124,8 @@ fn digest(token: &str) -> [u8; 32] {
 }
 
 /// Parse a token file; errors name the file and the line.
-pub fn parse_tokens(file: &str, text: &str) -> Result<Vec<(String, u8, [u8; 32])>, String> {
-    let mut out: Vec<(String, u8, [u8; 32])> = Vec::new();
+pub fn parse_tokens(file: &str, text: &str) -> Result<Vec<TokenLine>, String> {
+    let mut out: Vec<TokenLine> = Vec::new();
     for (i, raw) in text.lines().enumerate() {
         let line = raw.split('#').next().unwrap_or("").trim();
         if line.is_empty() {
@@ -107,11 +133,28 @@ pub fn parse_tokens(file: &str, text: &str) -> Result<Vec<(String, u8, [u8; 32])
         }
         let at = |why: String| format!("{file}: line {}: {why}", i + 1);
         let fields: Vec<&str> = line.split_whitespace().collect();
-        let [name, scopes, secret] = fields.as_slice() else {
-            return Err(at(format!(
-                "expected `name scopes sha256:<hex>`, found {} fields",
-                fields.len()
-            )));
+        let (name, scopes, collections, secret) = match fields.as_slice() {
+            [n, s, h] => (n, s, None, h),
+            [n, s, c, h] => (n, s, Some(c), h),
+            _ => {
+                return Err(at(format!(
+                    "expected `name scopes [collections] sha256:<hex>`, found {} fields",
+                    fields.len()
+                )))
+            }
+        };
+        let collections = match collections {
+            None => None,
+            Some(c) if *c == "*" => None,
+            Some(c) => {
+                let list: Vec<String> = c.split(',').map(str::to_string).collect();
+                if let Some(bad) = list.iter().find(|c| !valid_collection_name(c)) {
+                    return Err(at(format!(
+                        "collection {bad:?}: 1 to 64 letters, digits and - _ . only"
+                    )));
+                }
+                Some(list)
+            }
         };
         if !name
             .chars()
@@ -121,7 +164,7 @@ pub fn parse_tokens(file: &str, text: &str) -> Result<Vec<(String, u8, [u8; 32])
                 "name {name:?}: letters, digits and - _ . @ only"
             )));
         }
-        if out.iter().any(|e| e.0 == *name) {
+        if out.iter().any(|e| e.0 == **name) {
             return Err(at(format!("name {name:?} is given twice")));
         }
         let mut bits = 0u8;
@@ -140,12 +183,20 @@ pub fn parse_tokens(file: &str, text: &str) -> Result<Vec<(String, u8, [u8; 32])
         for (k, b) in h.iter_mut().enumerate() {
             *b = u8::from_str_radix(&hex[2 * k..2 * k + 2], 16).expect("hex checked");
         }
-        if out.iter().any(|e| e.2 == h) {
+        if out.iter().any(|e| e.3 == h) {
             return Err(at("the same secret is given to two names".into()));
         }
-        out.push((name.to_string(), bits, h));
+        out.push((name.to_string(), bits, collections, h));
     }
     Ok(out)
+}
+
+/// A collection's name: 1 to 64 ASCII letters, digits, `-`, `_`, `.`.
+pub fn valid_collection_name(name: &str) -> bool {
+    (1..=64).contains(&name.len())
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
 }
 
 /// Token buckets keyed by client.
@@ -210,20 +261,26 @@ impl Auth {
             entries.push(Entry {
                 name: "token".into(),
                 scopes: ALL_SCOPES,
+                collections: None,
                 hash: digest(t),
             });
         }
         let file = match &cfg.tokens_file {
             Some(p) => {
                 let (list, mtime) = read_file(p)?;
-                for (name, scopes, hash) in list {
+                for (name, scopes, collections, hash) in list {
                     if entries.iter().any(|e| e.name == name) {
                         return Err(format!(
                             "{}: the name {name:?} is taken by --token",
                             p.display()
                         ));
                     }
-                    entries.push(Entry { name, scopes, hash });
+                    entries.push(Entry {
+                        name,
+                        scopes,
+                        collections,
+                        hash,
+                    });
                 }
                 Some((p.clone(), Mutex::new(mtime)))
             }
@@ -273,7 +330,12 @@ impl Auth {
                 let n = list.len();
                 e.extend(
                     list.into_iter()
-                        .map(|(name, scopes, hash)| Entry { name, scopes, hash }),
+                        .map(|(name, scopes, collections, hash)| Entry {
+                            name,
+                            scopes,
+                            collections,
+                            hash,
+                        }),
                 );
                 tracing::info!("token file {} read again: {n} tokens", path.display());
             }
@@ -327,6 +389,7 @@ impl Auth {
         let p = Principal {
             name: e.name.clone(),
             scopes: e.scopes,
+            collections: e.collections.clone(),
         };
         if !p.may(need) {
             return Err(ApiError::PermissionDenied(format!(
@@ -364,7 +427,7 @@ impl Auth {
     }
 }
 
-fn read_file(p: &Path) -> Result<(Vec<(String, u8, [u8; 32])>, Option<SystemTime>), String> {
+fn read_file(p: &Path) -> Result<(Vec<TokenLine>, Option<SystemTime>), String> {
     let name = p.display().to_string();
     let text = std::fs::read_to_string(p).map_err(|e| format!("{name}: {e}"))?;
     let mtime = std::fs::metadata(p).and_then(|m| m.modified()).ok();
@@ -400,6 +463,7 @@ pub fn rest_scope(method: &axum::http::Method, path: &str) -> Option<Scope> {
         (&Method::POST, "/v1/motions") => Scope::Write,
         (&Method::DELETE, p) if p.starts_with("/v1/motions/") => Scope::Write,
         (_, p) if p.starts_with("/v1/audit") => Scope::Admin,
+        (&Method::POST, "/v1/collections") => Scope::Admin,
         _ => Scope::Read,
     })
 }
@@ -409,7 +473,7 @@ pub fn grpc_scope(path: &str) -> Option<Scope> {
     let method = path.strip_prefix("/choreo.v1.Choreo/")?;
     Some(match method {
         "IngestMotion" | "DeleteMotion" => Scope::Write,
-        "ListAudit" => Scope::Admin,
+        "ListAudit" | "CreateCollection" => Scope::Admin,
         _ => Scope::Read,
     })
 }
@@ -418,7 +482,7 @@ pub fn grpc_scope(path: &str) -> Option<Scope> {
 mod tests {
     use super::*;
 
-    fn file(lines: &str) -> Result<Vec<(String, u8, [u8; 32])>, String> {
+    fn file(lines: &str) -> Result<Vec<TokenLine>, String> {
         parse_tokens("tokens.txt", lines)
     }
 
@@ -426,6 +490,11 @@ mod tests {
     fn token_files_refuse_bad_lines_by_number() {
         let h = hash_token("s3cret");
         assert!(file(&format!("# c\n\na read {h}\n")).is_ok());
+        let l = file(&format!("a read x,y {h}\nb read * {}\n", hash_token("z"))).unwrap();
+        assert_eq!(l[0].2, Some(vec!["x".to_string(), "y".to_string()]));
+        assert_eq!(l[1].2, None);
+        let e = file(&format!("a read x/y {h}\n")).unwrap_err();
+        assert!(e.contains("line 1") && e.contains("collection"), "{e}");
         let e = file(&format!("a read {h}\nb reed {}\n", hash_token("x"))).unwrap_err();
         assert!(e.contains("line 2") && e.contains("reed"), "{e}");
         let e = file(&format!("a read {h}\na write {}\n", hash_token("x"))).unwrap_err();

@@ -151,10 +151,11 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::GenerateRequest>,
     ) -> Result<Response<pb::GenerateResponse>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let p = generate_params(req.into_inner())?;
-        let (m, r) = super::lm::generate(&self.state, p).await?;
+        let (m, r) = super::lm::generate(&self.state, p, &who).await?;
         Ok(Response::new(pb::GenerateResponse {
             output: Some(motion_pb(&m)),
             frames: r.frames as u32,
@@ -167,11 +168,12 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::GenerateRequest>,
     ) -> Result<Response<FrameStream>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let p = generate_params(req.into_inner())?;
         let (skeleton, fps) = super::lm::stream_format(&self.state)?;
-        let rx = super::lm::generate_stream(&self.state, p).await?;
+        let rx = super::lm::generate_stream(&self.state, p, &who).await?;
         let out = tokio_stream::wrappers::ReceiverStream::new(rx).map(move |r| {
             r.map(|f| frame_pb(&f, &skeleton, fps))
                 .map_err(Status::from)
@@ -266,10 +268,11 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::ClassifyRequest>,
     ) -> Result<Response<pb::ClassifyResponse>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
-        let c = super::lm::classify(&self.state, source("motion", r.motion)?).await?;
+        let c = super::lm::classify(&self.state, source("motion", r.motion)?, &who).await?;
         Ok(Response::new(pb::ClassifyResponse {
             classes: c
                 .into_iter()
@@ -289,7 +292,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::QueryRequest>,
     ) -> Result<Response<pb::QueryResponse>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
         let hits = super::query(
@@ -304,6 +308,7 @@ impl Choreo for ChoreoGrpc {
                 filters: r.filters.into_iter().collect(),
                 exact: r.exact,
             },
+            &who,
         )
         .await?;
         Ok(Response::new(pb::QueryResponse {
@@ -327,7 +332,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::InterpolateRequest>,
     ) -> Result<Response<pb::InterpolateResponse>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
         let (m, rep) = super::interpolate(
@@ -341,6 +347,7 @@ impl Choreo for ChoreoGrpc {
                 learning_rate: r.learning_rate,
                 despike: r.despike,
             },
+            &who,
         )
         .await?;
         Ok(Response::new(pb::InterpolateResponse {
@@ -362,10 +369,17 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::LowpassRequest>,
     ) -> Result<Response<pb::LowpassResponse>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
-        let m = super::lowpass(&self.state, source("motion", r.motion)?, r.cutoff as usize).await?;
+        let m = super::lowpass(
+            &self.state,
+            source("motion", r.motion)?,
+            r.cutoff as usize,
+            &who,
+        )
+        .await?;
         Ok(Response::new(pb::LowpassResponse {
             output: Some(motion_pb(&m)),
         }))
@@ -375,7 +389,8 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::KeyframesRequest>,
     ) -> Result<Response<pb::KeyframesResponse>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
         let (m, rep) = super::keyframes(
@@ -388,6 +403,7 @@ impl Choreo for ChoreoGrpc {
                 bpm: r.bpm,
                 music: r.music.map(|f| (f.name, f.content)),
             },
+            &who,
         )
         .await?;
         Ok(Response::new(pb::KeyframesResponse {
@@ -402,9 +418,10 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::ListMotionsRequest>,
     ) -> Result<Response<pb::ListMotionsResponse>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
-        let rows = super::list_motions(&self.state).await?;
+        let rows = super::list_motions(&self.state, &who).await?;
         Ok(Response::new(pb::ListMotionsResponse {
             motions: rows.into_iter().map(summary_pb).collect(),
         }))
@@ -431,6 +448,8 @@ impl Choreo for ChoreoGrpc {
             source("motion", r.motion)?,
             r.labels.into_iter().collect(),
             video,
+            (!r.collection.is_empty()).then_some(r.collection),
+            &who,
             &actor,
         )
         .await?;
@@ -459,9 +478,10 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::MotionId>,
     ) -> Result<Response<pb::GetMotionResponse>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
-        let (row, m) = super::get_motion(&self.state, req.into_inner().id).await?;
+        let (row, m) = super::get_motion(&self.state, req.into_inner().id, &who).await?;
         Ok(Response::new(pb::GetMotionResponse {
             summary: Some(summary_pb(row)),
             motion: Some(motion_pb(&m)),
@@ -472,9 +492,10 @@ impl Choreo for ChoreoGrpc {
         &self,
         req: Request<pb::MotionId>,
     ) -> Result<Response<pb::ExportMotionResponse>, Status> {
-        self.state
+        let who = self
+            .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
-        let bvh = super::export_bvh(&self.state, req.into_inner().id).await?;
+        let bvh = super::export_bvh(&self.state, req.into_inner().id, &who).await?;
         Ok(Response::new(pb::ExportMotionResponse { bvh }))
     }
 
@@ -486,8 +507,32 @@ impl Choreo for ChoreoGrpc {
             .state
             .authorize(bearer(&req), Scope::Write, peer(&req))?;
         let actor = actor(&who, &req);
-        super::delete_motion(&self.state, req.into_inner().id, &actor).await?;
+        super::delete_motion(&self.state, req.into_inner().id, &who, &actor).await?;
         Ok(Response::new(pb::DeleteMotionResponse {}))
+    }
+
+    async fn list_collections(
+        &self,
+        req: Request<pb::ListCollectionsRequest>,
+    ) -> Result<Response<pb::ListCollectionsResponse>, Status> {
+        let who = self
+            .state
+            .authorize(bearer(&req), Scope::Read, peer(&req))?;
+        let names = super::list_collections(&self.state, &who).await?;
+        Ok(Response::new(pb::ListCollectionsResponse { names }))
+    }
+
+    async fn create_collection(
+        &self,
+        req: Request<pb::CreateCollectionRequest>,
+    ) -> Result<Response<pb::CreateCollectionResponse>, Status> {
+        let who = self
+            .state
+            .authorize(bearer(&req), Scope::Admin, peer(&req))?;
+        let actor = actor(&who, &req);
+        let name = req.into_inner().name;
+        let created = super::create_collection(&self.state, &name, &actor).await?;
+        Ok(Response::new(pb::CreateCollectionResponse { created }))
     }
 
     async fn list_audit(
@@ -554,6 +599,7 @@ fn summary_pb(r: crate::store::MotionRow) -> pb::MotionSummary {
         duration_s: r.duration_s,
         video_offset_s: r.video.as_ref().map_or(0.0, |v| v.video_offset_s),
         video: r.video.map(|v| v.video).unwrap_or_default(),
+        collection: r.collection,
     }
 }
 

@@ -1,6 +1,7 @@
 //! REST over axum: JSON in, JSON out; every handler converts and calls the
 //! operation of [`super`].
 
+use super::auth::Principal;
 use super::{ApiError, AppState, InterpolateParams, KeyframesParams, MotionInput, QueryParams};
 use crate::motion::Labels;
 use axum::extract::rejection::{JsonRejection, PathRejection};
@@ -188,6 +189,7 @@ pub struct QueryBody {
 
 async fn query(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
     b: Result<Json<QueryBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
@@ -203,6 +205,7 @@ async fn query(
             filters: b.filters.into_iter().collect(),
             exact: b.exact,
         },
+        &who,
     )
     .await?;
     Ok(Json(json!({ "hits": hits })))
@@ -227,6 +230,7 @@ pub struct InterpolateBody {
 
 async fn interpolate(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
     b: Result<Json<InterpolateBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
@@ -241,6 +245,7 @@ async fn interpolate(
             learning_rate: b.learning_rate,
             despike: b.despike,
         },
+        &who,
     )
     .await?;
     let mut v = serde_json::to_value(&r).map_err(|e| ApiError::Internal(e.to_string()))?;
@@ -258,10 +263,11 @@ pub struct LowpassBody {
 
 async fn lowpass(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
     b: Result<Json<LowpassBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
-    let m = super::lowpass(&s, source("motion", b.motion)?, b.cutoff).await?;
+    let m = super::lowpass(&s, source("motion", b.motion)?, b.cutoff, &who).await?;
     Ok(Json(json!({ "output": MotionJson::from_motion(&m) })))
 }
 
@@ -281,6 +287,7 @@ pub struct KeyframesBody {
 
 async fn keyframes(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
     b: Result<Json<KeyframesBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
@@ -303,6 +310,7 @@ async fn keyframes(
             bpm: b.bpm,
             music,
         },
+        &who,
     )
     .await?;
     let mut v = serde_json::to_value(&r).map_err(|e| ApiError::Internal(e.to_string()))?;
@@ -314,7 +322,7 @@ async fn keyframes(
 fn summary(r: &crate::store::MotionRow) -> serde_json::Value {
     let mut v = json!({"id": r.id, "source_path": r.source_path, "format": r.format, "fps": r.fps,
            "frames": r.frames, "joints": r.joints, "skeleton": r.skeleton,
-           "duration_s": r.duration_s, "labels": r.labels});
+           "duration_s": r.duration_s, "labels": r.labels, "collection": r.collection});
     if let Some(link) = &r.video {
         v["video"] = json!(link.video);
         v["video_offset_s"] = json!(link.video_offset_s);
@@ -322,8 +330,11 @@ fn summary(r: &crate::store::MotionRow) -> serde_json::Value {
     v
 }
 
-async fn list_motions(State(s): State<Arc<AppState>>) -> Result<Json<serde_json::Value>, ApiError> {
-    let rows = super::list_motions(&s).await?;
+async fn list_motions(
+    State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let rows = super::list_motions(&s, &who).await?;
     let motions: Vec<serde_json::Value> = rows.iter().map(summary).collect();
     Ok(Json(json!({ "motions": motions })))
 }
@@ -345,11 +356,15 @@ pub struct IngestBody {
     /// Video time of the motion's first frame, seconds (default 0).
     #[serde(default)]
     pub video_offset_s: Option<f64>,
+    /// The collection to store it in (default `default`); it must exist
+    /// and be the token's.
+    #[serde(default)]
+    pub collection: Option<String>,
 }
 
 /// The writer of a request (its principal, set by [`require_scope`]) and
 /// its id.
-fn actor(who: &super::auth::Principal, headers: &HeaderMap) -> super::Actor {
+fn actor(who: &Principal, headers: &HeaderMap) -> super::Actor {
     super::Actor {
         name: who.name.clone(),
         request_id: headers
@@ -362,7 +377,7 @@ fn actor(who: &super::auth::Principal, headers: &HeaderMap) -> super::Actor {
 
 async fn ingest(
     State(s): State<Arc<AppState>>,
-    Extension(who): Extension<super::auth::Principal>,
+    Extension(who): Extension<Principal>,
     headers: HeaderMap,
     b: Result<Json<IngestBody>, JsonRejection>,
 ) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
@@ -379,6 +394,8 @@ async fn ingest(
         source("motion", b.motion)?,
         b.labels,
         video,
+        b.collection,
+        &who,
         &actor(&who, &headers),
     )
     .await?;
@@ -399,9 +416,10 @@ fn motion_id(p: Result<Path<i64>, PathRejection>) -> Result<i64, ApiError> {
 
 async fn get_motion(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    let (row, m) = super::get_motion(&s, motion_id(id)?).await?;
+    let (row, m) = super::get_motion(&s, motion_id(id)?, &who).await?;
     Ok(Json(
         json!({ "motion": summary(&row), "data": MotionJson::from_motion(&m) }),
     ))
@@ -424,10 +442,11 @@ fn attachment(content_type: &str, filename: String, body: impl IntoResponse) -> 
 
 async fn export_glb(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Response, ApiError> {
     let id = motion_id(id)?;
-    let bytes = super::export_glb(&s, id).await?;
+    let bytes = super::export_glb(&s, id, &who).await?;
     Ok(attachment(
         "model/gltf-binary",
         format!("motion-{id}.glb"),
@@ -437,10 +456,11 @@ async fn export_glb(
 
 async fn export_motion(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Response, ApiError> {
     let id = motion_id(id)?;
-    let text = super::export_bvh(&s, id).await?;
+    let text = super::export_bvh(&s, id, &who).await?;
     Ok(attachment(
         "text/plain; charset=utf-8",
         format!("motion-{id}.bvh"),
@@ -450,11 +470,11 @@ async fn export_motion(
 
 async fn delete_motion(
     State(s): State<Arc<AppState>>,
-    Extension(who): Extension<super::auth::Principal>,
+    Extension(who): Extension<Principal>,
     headers: HeaderMap,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<StatusCode, ApiError> {
-    super::delete_motion(&s, motion_id(id)?, &actor(&who, &headers)).await?;
+    super::delete_motion(&s, motion_id(id)?, &who, &actor(&who, &headers)).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -467,6 +487,39 @@ pub struct AuditQuery {
 
 fn default_audit_limit() -> i64 {
     100
+}
+
+async fn list_collections(
+    State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let names = super::list_collections(&s, &who).await?;
+    Ok(Json(json!({ "collections": names })))
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollectionBody {
+    pub name: String,
+}
+
+/// Create a collection (`admin` scope): 201 when new, 200 when it exists.
+async fn create_collection(
+    State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
+    headers: HeaderMap,
+    b: Result<Json<CollectionBody>, JsonRejection>,
+) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
+    let b = body(b)?;
+    let created = super::create_collection(&s, &b.name, &actor(&who, &headers)).await?;
+    Ok((
+        if created {
+            StatusCode::CREATED
+        } else {
+            StatusCode::OK
+        },
+        Json(json!({ "name": b.name, "created": created })),
+    ))
 }
 
 /// The newest audit entries (`admin` scope).
@@ -593,10 +646,11 @@ impl GenerateBody {
 
 async fn generate(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
     b: Result<Json<GenerateBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let p = body(b)?.params()?;
-    let (m, r) = super::lm::generate(&s, p).await?;
+    let (m, r) = super::lm::generate(&s, p, &who).await?;
     Ok(Json(json!({
         "output": MotionJson::from_motion(&m),
         "frames": r.frames,
@@ -613,10 +667,11 @@ pub struct ClassifyBody {
 
 async fn classify(
     State(s): State<Arc<AppState>>,
+    Extension(who): Extension<Principal>,
     b: Result<Json<ClassifyBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
-    let c = super::lm::classify(&s, source("motion", b.motion)?).await?;
+    let c = super::lm::classify(&s, source("motion", b.motion)?, &who).await?;
     let kinds: Vec<serde_json::Value> = c
         .iter()
         .map(|(k, v)| {
@@ -719,6 +774,10 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         .route("/v1/motions/{id}/bvh", get(export_motion))
         .route("/v1/motions/{id}/glb", get(export_glb))
         .route("/v1/audit", get(audit))
+        .route(
+            "/v1/collections",
+            get(list_collections).post(create_collection),
+        )
         .route(
             "/openapi.json",
             get(|| async {

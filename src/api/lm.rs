@@ -80,7 +80,11 @@ impl GenerateJob {
 }
 
 /// Validates a request and sets the generation up (cheap: no model step).
-pub async fn generate_job(state: &AppState, p: GenerateParams) -> Result<GenerateJob, ApiError> {
+pub async fn generate_job(
+    state: &AppState,
+    p: GenerateParams,
+    who: &super::auth::Principal,
+) -> Result<GenerateJob, ApiError> {
     let session = model(state)?;
     let vocab = session.vocabulary();
     if p.frames > MAX_GENERATE_FRAMES {
@@ -100,7 +104,7 @@ pub async fn generate_job(state: &AppState, p: GenerateParams) -> Result<Generat
                     ),
                 ));
             }
-            let m = state.resolve("prompt", input).await?;
+            let m = state.resolve("prompt", input, who).await?;
             let slots = prompt_slots(vocab, &p.prompt_joints)?;
             let tokens = vocab.encode_motion(&m)?;
             forced_frames(&tokens, &slots)
@@ -116,7 +120,7 @@ pub async fn generate_job(state: &AppState, p: GenerateParams) -> Result<Generat
         }
     };
     let seed = match p.seed_motion {
-        Some(input) => vocab.encode_motion(&state.resolve("seed_motion", input).await?)?,
+        Some(input) => vocab.encode_motion(&state.resolve("seed_motion", input, who).await?)?,
         None => Vec::new(),
     };
     let frames = match (p.frames, forced.len()) {
@@ -148,8 +152,9 @@ pub struct GenerateReport {
 pub async fn generate(
     state: &AppState,
     p: GenerateParams,
+    who: &super::auth::Principal,
 ) -> Result<(Motion, GenerateReport), ApiError> {
-    let mut job = generate_job(state, p).await?;
+    let mut job = generate_job(state, p, who).await?;
     state
         .heavy("generate", move || {
             let t0 = Instant::now();
@@ -195,8 +200,9 @@ pub fn stream_format(state: &AppState) -> Result<(String, f64), ApiError> {
 pub async fn generate_stream(
     state: &AppState,
     p: GenerateParams,
+    who: &super::auth::Principal,
 ) -> Result<mpsc::Receiver<Result<StreamFrame, ApiError>>, ApiError> {
-    let mut job = generate_job(state, p).await?;
+    let mut job = generate_job(state, p, who).await?;
     let permit = state
         .workers
         .clone()
@@ -333,9 +339,13 @@ impl DuetSession {
 /// Class probabilities per label kind the model classifies.
 pub type Classes = Vec<(String, Vec<(String, f64)>)>;
 
-pub async fn classify(state: &AppState, motion: MotionInput) -> Result<Classes, ApiError> {
+pub async fn classify(
+    state: &AppState,
+    motion: MotionInput,
+    who: &super::auth::Principal,
+) -> Result<Classes, ApiError> {
     let session = model(state)?;
-    let m = state.resolve("motion", motion).await?;
+    let m = state.resolve("motion", motion, who).await?;
     state
         .heavy("classify", move || {
             let tokens = session.vocabulary().encode_motion(&m)?;

@@ -282,7 +282,12 @@ impl AppState {
 
     /// The motion of any input (uploads parsed, stored ones read from the
     /// store), checked against the duration limit.
-    pub async fn resolve(&self, field: &str, input: MotionInput) -> Result<Motion, ApiError> {
+    pub async fn resolve(
+        &self,
+        field: &str,
+        input: MotionInput,
+        who: &auth::Principal,
+    ) -> Result<Motion, ApiError> {
         let m = match input {
             MotionInput::Inline(m) => m,
             MotionInput::File { name, bytes, read } => {
@@ -300,6 +305,9 @@ impl AppState {
                 load_motion(&self.store, id)
                     .await
                     .map_err(|e| prefix(field, e.into()))?
+                    // A motion of a collection the caller cannot see is
+                    // answered as if it did not exist.
+                    .filter(|(row, _)| who.sees(&row.collection))
                     .ok_or_else(|| ApiError::Missing {
                         field: format!("{field}.id"),
                         reason: format!("no stored motion {id}"),
@@ -373,7 +381,11 @@ pub struct QueryParams {
     pub exact: bool,
 }
 
-pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, ApiError> {
+pub async fn query(
+    state: &AppState,
+    p: QueryParams,
+    who: &auth::Principal,
+) -> Result<Vec<QueryHit>, ApiError> {
     // Motion from video (keypoints, SMPL from an estimator) is searched by
     // the pose embedding unless the request names another.
     let footage = match &p.motion {
@@ -384,12 +396,21 @@ pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, Ap
             .await
             .ok()
             .flatten()
+            .filter(|r| who.sees(&r.collection))
             .is_some_and(|r| r.format == "keypoints" || r.format == "smpl"),
         MotionInput::Inline(_) => false,
     };
     let source = match p.motion {
-        MotionInput::Stored(id) => QuerySource::Stored(id),
-        other => QuerySource::Motion(state.resolve("motion", other).await?),
+        MotionInput::Stored(id) => {
+            visible(state, id, who)
+                .await
+                .map_err(|_| ApiError::Missing {
+                    field: "motion.id".into(),
+                    reason: format!("no stored motion {id}"),
+                })?;
+            QuerySource::Stored(id)
+        }
+        other => QuerySource::Motion(state.resolve("motion", other, who).await?),
     };
     let embedding = match p.embedding.as_str() {
         "" if footage => Embedding::Pose,
@@ -416,6 +437,7 @@ pub async fn query(state: &AppState, p: QueryParams) -> Result<Vec<QueryHit>, Ap
         metric,
         filters: p.filters,
         exact: p.exact,
+        collections: who.collections.clone(),
     };
     let _permit = state
         .light
@@ -439,9 +461,10 @@ pub struct InterpolateParams {
 pub async fn interpolate(
     state: &AppState,
     p: InterpolateParams,
+    who: &auth::Principal,
 ) -> Result<(Motion, InterpolateReport), ApiError> {
-    let a = state.resolve("input", p.input).await?;
-    let b = state.resolve("target", p.target).await?;
+    let a = state.resolve("input", p.input, who).await?;
+    let b = state.resolve("target", p.target, who).await?;
     let objective = match p.objective.as_str() {
         "" => Embedding::Dct,
         o => Embedding::parse(o).ok_or_else(|| {
@@ -485,8 +508,9 @@ pub async fn lowpass(
     state: &AppState,
     motion: MotionInput,
     cutoff: usize,
+    who: &auth::Principal,
 ) -> Result<Motion, ApiError> {
-    let m = state.resolve("motion", motion).await?;
+    let m = state.resolve("motion", motion, who).await?;
     state
         .heavy("lowpass", move || {
             let m = smpl24_at_60(&m)?;
@@ -509,8 +533,9 @@ pub struct KeyframesParams {
 pub async fn keyframes(
     state: &AppState,
     p: KeyframesParams,
+    who: &auth::Principal,
 ) -> Result<(Motion, KeyframeReport), ApiError> {
-    let m = state.resolve("motion", p.motion).await?;
+    let m = state.resolve("motion", p.motion, who).await?;
     let select = match p.select.as_str() {
         "" => Select::Dp,
         s => Select::parse(s).ok_or_else(|| {
@@ -669,8 +694,27 @@ pub async fn ingest(
     input: MotionInput,
     labels: Labels,
     video: Option<VideoLink>,
+    collection: Option<String>,
+    who: &auth::Principal,
     actor: &Actor,
 ) -> Result<IngestOutcome, ApiError> {
+    // The collection must exist and be the writer's: an unknown one and one
+    // not granted get the same answer, so that nothing leaks.
+    let collection =
+        collection.unwrap_or_else(|| crate::service::ingest::DEFAULT_COLLECTION.into());
+    if !who.sees(&collection)
+        || !state
+            .store
+            .collections()
+            .await
+            .map_err(internal)?
+            .contains(&collection)
+    {
+        return Err(ApiError::Missing {
+            field: "collection".into(),
+            reason: format!("no collection {collection:?}"),
+        });
+    }
     if let Some(v) = &video {
         check_video(v)?;
     }
@@ -714,6 +758,7 @@ pub async fn ingest(
         keep_files: true,
         read,
         video,
+        collection,
         ..Default::default()
     };
     let _permit = state
@@ -763,8 +808,29 @@ pub async fn audit(state: &AppState, limit: i64) -> Result<Vec<crate::store::Aud
     state.store.audit(limit).await.map_err(internal)
 }
 
+/// A stored motion's row, when the caller may see it: a motion of a
+/// collection it cannot see is not found, the same answer as no motion.
+pub async fn visible(
+    state: &AppState,
+    id: i64,
+    who: &auth::Principal,
+) -> Result<MotionRow, ApiError> {
+    state
+        .store
+        .motion(id)
+        .await
+        .map_err(internal)?
+        .filter(|r| who.sees(&r.collection))
+        .ok_or_else(|| ApiError::NotFound(format!("motion {id}")))
+}
+
 /// A stored motion and its row.
-pub async fn get_motion(state: &AppState, id: i64) -> Result<(MotionRow, Motion), ApiError> {
+pub async fn get_motion(
+    state: &AppState,
+    id: i64,
+    who: &auth::Principal,
+) -> Result<(MotionRow, Motion), ApiError> {
+    visible(state, id, who).await?;
     load_motion(&state.store, id)
         .await?
         .ok_or_else(|| ApiError::NotFound(format!("motion {id}")))
@@ -772,7 +838,12 @@ pub async fn get_motion(state: &AppState, id: i64) -> Result<(MotionRow, Motion)
 
 /// A stored motion as BVH text: a BVH source is given back byte for byte
 /// (unparsed), any other is written (SMPL skeleton, ZXY Euler, centimetres).
-pub async fn export_bvh(state: &AppState, id: i64) -> Result<String, ApiError> {
+pub async fn export_bvh(
+    state: &AppState,
+    id: i64,
+    who: &auth::Principal,
+) -> Result<String, ApiError> {
+    visible(state, id, who).await?;
     let (row, name, bytes) = load_source(&state.store, id)
         .await?
         .ok_or_else(|| ApiError::NotFound(format!("motion {id}")))?;
@@ -788,8 +859,12 @@ pub async fn export_bvh(state: &AppState, id: i64) -> Result<String, ApiError> {
 }
 
 /// A stored motion as binary glTF (skinned skeleton and its animation).
-pub async fn export_glb(state: &AppState, id: i64) -> Result<Vec<u8>, ApiError> {
-    let (_, m) = get_motion(state, id).await?;
+pub async fn export_glb(
+    state: &AppState,
+    id: i64,
+    who: &auth::Principal,
+) -> Result<Vec<u8>, ApiError> {
+    let (_, m) = get_motion(state, id, who).await?;
     state
         .heavy("export", move || {
             Ok(crate::motion::io::gltf::write_glb(&m)?)
@@ -798,7 +873,13 @@ pub async fn export_glb(state: &AppState, id: i64) -> Result<Vec<u8>, ApiError> 
 }
 
 /// Remove a stored motion and everything derived from it.
-pub async fn delete_motion(state: &AppState, id: i64, actor: &Actor) -> Result<(), ApiError> {
+pub async fn delete_motion(
+    state: &AppState,
+    id: i64,
+    who: &auth::Principal,
+    actor: &Actor,
+) -> Result<(), ApiError> {
+    visible(state, id, who).await?;
     if !state.searcher.delete(id).await.map_err(internal)? {
         return Err(ApiError::NotFound(format!("motion {id}")));
     }
@@ -814,10 +895,58 @@ pub async fn delete_motion(state: &AppState, id: i64, actor: &Actor) -> Result<(
         .map_err(internal)
 }
 
-pub async fn list_motions(state: &AppState) -> Result<Vec<MotionRow>, ApiError> {
-    state
+pub async fn list_motions(
+    state: &AppState,
+    who: &auth::Principal,
+) -> Result<Vec<MotionRow>, ApiError> {
+    let mut rows = state
         .store
         .motions()
         .await
-        .map_err(|e| ApiError::Internal(e.to_string()))
+        .map_err(|e| ApiError::Internal(e.to_string()))?;
+    rows.retain(|r| who.sees(&r.collection));
+    Ok(rows)
+}
+
+/// The collections the caller may see.
+pub async fn list_collections(
+    state: &AppState,
+    who: &auth::Principal,
+) -> Result<Vec<String>, ApiError> {
+    let mut all = state.store.collections().await.map_err(internal)?;
+    all.retain(|c| who.sees(c));
+    Ok(all)
+}
+
+/// Create a collection (`admin`); `true` when new. Recorded in the audit
+/// trail.
+pub async fn create_collection(
+    state: &AppState,
+    name: &str,
+    actor: &Actor,
+) -> Result<bool, ApiError> {
+    if !auth::valid_collection_name(name) {
+        return Err(ApiError::invalid(
+            "name",
+            "a collection's name is 1 to 64 letters, digits and - _ . only",
+        ));
+    }
+    let created = state
+        .store
+        .create_collection(name)
+        .await
+        .map_err(internal)?;
+    if created {
+        state
+            .store
+            .audit_append(
+                &actor.name,
+                "collection-create",
+                &format!("collection {name}"),
+                &actor.request_id,
+            )
+            .await
+            .map_err(internal)?;
+    }
+    Ok(created)
 }

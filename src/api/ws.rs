@@ -36,9 +36,13 @@ use std::time::Instant;
 /// with an inline prompt).
 pub const MAX_MESSAGE_BYTES: usize = 16 << 20;
 
-pub async fn generate(State(s): State<Arc<AppState>>, ws: WebSocketUpgrade) -> Response {
+pub async fn generate(
+    State(s): State<Arc<AppState>>,
+    axum::Extension(who): axum::Extension<super::auth::Principal>,
+    ws: WebSocketUpgrade,
+) -> Response {
     ws.max_message_size(MAX_MESSAGE_BYTES)
-        .on_upgrade(move |socket| generate_socket(s, socket))
+        .on_upgrade(move |socket| generate_socket(s, socket, who))
 }
 
 pub async fn duet(State(s): State<Arc<AppState>>, ws: WebSocketUpgrade) -> Response {
@@ -103,7 +107,7 @@ async fn next_json<T: for<'de> Deserialize<'de>>(
     }
 }
 
-async fn generate_socket(state: Arc<AppState>, mut socket: WebSocket) {
+async fn generate_socket(state: Arc<AppState>, mut socket: WebSocket, who: super::auth::Principal) {
     let body: GenerateBody = match next_json(&mut socket).await {
         Ok(Some(b)) => b,
         Ok(None) => return,
@@ -112,7 +116,7 @@ async fn generate_socket(state: Arc<AppState>, mut socket: WebSocket) {
     let started = Instant::now();
     let rx = async {
         let (skeleton, fps) = lm::stream_format(&state)?;
-        let rx = lm::generate_stream(&state, body.params()?).await?;
+        let rx = lm::generate_stream(&state, body.params()?, &who).await?;
         Ok::<_, ApiError>((skeleton, fps, rx))
     }
     .await;

@@ -30,6 +30,8 @@ pub struct IngestOptions {
     /// The footage the file was estimated from, and the video time of its
     /// first row (a WHAM-style file's first `frame_ids` is added to it).
     pub video: Option<VideoLink>,
+    /// The collection the motions go into (it must exist).
+    pub collection: String,
 }
 
 impl Default for IngestOptions {
@@ -41,6 +43,7 @@ impl Default for IngestOptions {
             extra_labels: Labels::new(),
             keep_files: false,
             video: None,
+            collection: DEFAULT_COLLECTION.into(),
         }
     }
 }
@@ -85,6 +88,26 @@ pub fn collect_files_with(paths: &[PathBuf], read: &ReadOptions) -> Vec<PathBuf>
     out.sort();
     out.dedup();
     out
+}
+
+/// The collection motions go into unless a request names another.
+pub const DEFAULT_COLLECTION: &str = "default";
+
+/// What makes a stored file unique: its content hash within its
+/// collection. In `default` it is the plain SHA-256 (as before
+/// collections); elsewhere the collection's name is hashed in, so the same
+/// file may be stored in two collections, and an ingest never tells a
+/// caller that a file exists in a collection it cannot see.
+pub fn identity_hash(collection: &str, bytes: &[u8]) -> String {
+    if collection == DEFAULT_COLLECTION {
+        return content_hash(bytes);
+    }
+    let mut h = Sha256::new();
+    h.update(b"choreo collection\0");
+    h.update(collection.as_bytes());
+    h.update(b"\0");
+    h.update(bytes);
+    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }
 
 pub fn content_hash(bytes: &[u8]) -> String {
@@ -156,6 +179,7 @@ pub fn prepare_with(
             (base, bytes)
         }),
         read_options: opts.read.clone(),
+        collection: opts.collection.clone(),
         video: opts.video.clone().map(|v| VideoLink {
             video_offset_s: v.video_offset_s
                 + loaded
@@ -252,7 +276,7 @@ pub async fn ingest_bytes(
     bytes: Vec<u8>,
     opts: &IngestOptions,
 ) -> Result<Result<Stored, MotionError>, StoreError> {
-    let hash = content_hash(&bytes);
+    let hash = identity_hash(&opts.collection, &bytes);
     if let Some(id) = store.motion_by_hash(&hash).await? {
         return Ok(Ok(Stored::Existing { motion_id: id }));
     }
@@ -294,7 +318,7 @@ pub async fn load_source(
                 row.source_path
             ))
         })?;
-    if content_hash(&bytes) != row.content_hash {
+    if identity_hash(&row.collection, &bytes) != row.content_hash {
         return Err(LoadError::Gone(format!(
             "motion {id}: the store keeps no copy and {} has changed since it was ingested",
             row.source_path

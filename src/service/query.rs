@@ -73,6 +73,8 @@ pub struct QueryRequest {
     pub filters: Vec<(String, String)>,
     /// Exact search instead of HNSW.
     pub exact: bool,
+    /// Only motions of these collections may be hits (`None`: any).
+    pub collections: Option<Vec<String>>,
 }
 
 #[derive(Clone, Debug, Serialize, PartialEq)]
@@ -381,8 +383,32 @@ impl Searcher {
 
     /// A filter that can match nothing is a mistake, not an empty answer:
     /// refused as `filters.KIND`, naming the kinds or values stored.
-    async fn check_filters(&self, filters: &[(String, String)]) -> Result<(), QueryError> {
-        let known = self.store.label_values().await?;
+    /// Filters that no stored motion (of `visible`, when given) can match
+    /// are refused, with the kinds and values there are.
+    async fn check_filters(
+        &self,
+        filters: &[(String, String)],
+        visible: Option<&HashSet<i64>>,
+    ) -> Result<(), QueryError> {
+        let known = match visible {
+            None => self.store.label_values().await?,
+            // Only what the caller may see is named.
+            Some(v) => {
+                let mut out =
+                    std::collections::BTreeMap::<String, std::collections::BTreeSet<String>>::new();
+                for m in self
+                    .catalog()
+                    .motions
+                    .values()
+                    .filter(|m| v.contains(&m.id))
+                {
+                    for (k, val) in &m.labels {
+                        out.entry(k.clone()).or_default().insert(val.clone());
+                    }
+                }
+                out
+            }
+        };
         let list = |it: &mut dyn Iterator<Item = &String>| {
             let all: Vec<&String> = it.collect();
             let shown: Vec<&str> = all.iter().take(20).map(|s| s.as_str()).collect();
@@ -444,10 +470,19 @@ impl Searcher {
 
     pub async fn query(self: &Arc<Self>, req: QueryRequest) -> Result<Vec<QueryHit>, QueryError> {
         let entry = self.entry((req.embedding, req.metric, req.exact)).await?;
-        let allowed: Option<HashSet<i64>> = if req.filters.is_empty() {
+        // Motions of the collections the caller may see (`None`: all).
+        let visible: Option<HashSet<i64>> = req.collections.as_ref().map(|cs| {
+            self.catalog()
+                .motions
+                .values()
+                .filter(|m| cs.contains(&m.collection))
+                .map(|m| m.id)
+                .collect()
+        });
+        let mut allowed: Option<HashSet<i64>> = if req.filters.is_empty() {
             None
         } else {
-            self.check_filters(&req.filters).await?;
+            self.check_filters(&req.filters, visible.as_ref()).await?;
             Some(
                 self.store
                     .motions_with_labels(&req.filters)
@@ -456,6 +491,12 @@ impl Searcher {
                     .collect(),
             )
         };
+        if let Some(v) = visible {
+            allowed = Some(match allowed {
+                Some(a) => a.intersection(&v).copied().collect(),
+                None => v,
+            });
+        }
         let (stored, reuse) = match &req.source {
             QuerySource::Stored(id) => {
                 // Only the segment's frames are read from the store.

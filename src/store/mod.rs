@@ -55,6 +55,8 @@ pub struct MotionRow {
     pub read_options: ReadOptions,
     #[serde(flatten)]
     pub video: Option<VideoLink>,
+    /// The collection it belongs to (`default` unless ingest named one).
+    pub collection: String,
 }
 
 /// The footage a motion came from.
@@ -97,6 +99,7 @@ pub struct NewMotion {
     pub file: Option<(String, Vec<u8>)>,
     pub read_options: ReadOptions,
     pub video: Option<VideoLink>,
+    pub collection: String,
 }
 
 pub struct NewWindow {
@@ -231,8 +234,8 @@ impl Store {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
         let labels = serde_json::to_string(&m.labels).unwrap_or_else(|_| "{}".into());
         let id: i64 = sqlx::query_scalar(
-            "INSERT INTO motions (id, source_path, content_hash, format, fps, frames, joints, skeleton, duration_s, labels, read_options, video, video_offset_s)
-             VALUES ((SELECT last + 1 FROM motion_id_seq), ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
+            "INSERT INTO motions (id, source_path, content_hash, format, fps, frames, joints, skeleton, duration_s, labels, read_options, video, video_offset_s, collection)
+             VALUES ((SELECT last + 1 FROM motion_id_seq), ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
         )
         .bind(&m.source_path)
         .bind(&m.content_hash)
@@ -249,6 +252,7 @@ impl Store {
         )
         .bind(m.video.as_ref().map(|v| v.video.clone()))
         .bind(m.video.as_ref().map(|v| v.video_offset_s))
+        .bind(&m.collection)
         .fetch_one(&mut *tx)
         .await
         .map_err(|e| self.db(e))?;
@@ -364,6 +368,7 @@ impl Store {
             duration_s: r.try_get("duration_s").map_err(|e| self.db(e))?,
             labels: serde_json::from_str(&labels)
                 .map_err(|e| self.corrupt("motions.labels", e.to_string()))?,
+            collection: r.try_get("collection").map_err(|e| self.db(e))?,
             read_options: match r
                 .try_get::<Option<String>, _>("read_options")
                 .map_err(|e| self.db(e))?
@@ -609,6 +614,25 @@ impl Store {
         bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
         tx.commit().await.map_err(|e| self.db(e))?;
         Ok(())
+    }
+
+    /// The collections, by name.
+    pub async fn collections(&self) -> Result<Vec<String>> {
+        sqlx::query_scalar("SELECT name FROM collections ORDER BY name")
+            .fetch_all(&self.pool)
+            .await
+            .map_err(|e| self.db(e))
+    }
+
+    /// Create a collection; `false` when it exists already.
+    pub async fn create_collection(&self, name: &str) -> Result<bool> {
+        let r =
+            sqlx::query("INSERT INTO collections (name) VALUES (?) ON CONFLICT(name) DO NOTHING")
+                .bind(name)
+                .execute(&self.pool)
+                .await
+                .map_err(|e| self.db(e))?;
+        Ok(r.rows_affected() == 1)
     }
 
     /// Append one entry to the audit trail.

@@ -6,7 +6,7 @@ use crate::features::Embedding;
 use crate::index::hnsw::HnswIndex;
 use crate::index::AnnIndex;
 use crate::motion::{Labels, MotionError};
-use crate::service::ingest::{self, content_hash, IngestOptions, Stored};
+use crate::service::ingest::{self, identity_hash, IngestOptions, Stored};
 use crate::service::query::QueryError;
 use crate::store::WindowRef;
 use serde::Serialize;
@@ -34,7 +34,7 @@ impl Searcher {
         bytes: Vec<u8>,
         opts: &IngestOptions,
     ) -> Result<Result<IngestOutcome, MotionError>, QueryError> {
-        let hash = content_hash(&bytes);
+        let hash = identity_hash(&opts.collection, &bytes);
         let _w = self.writes.lock().await;
         if let Some(id) = self.store.motion_by_hash(&hash).await? {
             let mut merged_labels = None;
