@@ -7,7 +7,7 @@ answers. The same run is made without a rate limit and with one; each
 prints answers/s per client and the polite clients' latency.
 
 Usage: deploy/load/fairness.py [--bin target/release/choreo] [--seconds 15]
-         [--rate 20] [--storm-threads 4]
+         [--rate 20] [--storm-threads 4] [--endpoint query|generate]
 """
 import argparse, hashlib, http.client, json, os, re, statistics, subprocess, sys, tempfile, threading, time
 
@@ -17,9 +17,14 @@ p.add_argument("--data", default=os.environ.get("CHOREO_DATA", "../shared/data")
 p.add_argument("--seconds", type=float, default=15)
 p.add_argument("--rate", type=float, default=20)
 p.add_argument("--storm-threads", type=int, default=4)
+p.add_argument("--endpoint", choices=["query", "generate"], default="query")
 args = p.parse_args()
 
-QUERY = json.dumps({"motion": {"id": 1}, "start_s": 1.0, "k": 5, "embedding": "dct"})
+PATH, BODY = {
+    "query": ("/v1/query", json.dumps({"motion": {"id": 1}, "start_s": 1.0, "k": 5, "embedding": "dct"})),
+    # 2 s of generated dance: the heavy pool (--workers 2).
+    "generate": ("/v1/generate", json.dumps({"labels": {"genre": "BR"}, "frames": 40, "sampling": {"seed": 1}})),
+}[args.endpoint]
 
 
 def sha(s):
@@ -59,7 +64,7 @@ def run(rate):
             while time.time() < stop:
                 t0 = time.time()
                 try:
-                    c.request("POST", "/v1/query", QUERY, hdr)
+                    c.request("POST", PATH, BODY, hdr)
                     r = c.getresponse()
                     r.read()
                 except Exception:
@@ -103,5 +108,5 @@ for rate in (0, args.rate):
     r = run(rate)
     total = sum(v["answers_per_s"] for v in r.values())
     polite = r["polite1"]["answers_per_s"] + r["polite2"]["answers_per_s"]
-    print(json.dumps({"rate_limit": rate or "off", "clients": r,
+    print(json.dumps({"endpoint": args.endpoint, "rate_limit": rate or "off", "clients": r,
                       "polite_share_of_answers": round(polite / total, 3) if total else None}))
