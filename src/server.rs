@@ -250,7 +250,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     } else if cfg.public_read {
         tracing::warn!("--public-read: anyone who reaches the port can query, list and export every stored motion");
     }
-    crate::api::auth::spawn_reloader(auth.clone());
+    crate::api::auth::spawn_reloader(auth.clone(), store.clone());
     let inbetweener = if cfg.inbetweener.exists() {
         Some(Arc::new(
             crate::lm::inbetween::Inbetweener::load_with(&cfg.inbetweener, &engine)

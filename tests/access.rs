@@ -211,6 +211,26 @@ async fn scoped_tokens_revocation_and_the_audit_trail_over_both_transports() {
     .await
     .unwrap();
     assert_eq!(revoked.0, 401, "{}", revoked.2);
+    // The change is in the audit trail, by name.
+    let trail =
+        tokio::task::spawn_blocking(move || http(h, "GET", "/v1/audit", None, Some("ops-secret")))
+            .await
+            .unwrap();
+    let change = trail.2["entries"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["action"] == "tokens-change")
+        .unwrap_or_else(|| panic!("{}", trail.2))
+        .clone();
+    assert!(
+        change["target"]
+            .as_str()
+            .unwrap()
+            .contains("removed [reader]"),
+        "{change}"
+    );
+    assert!(!trail.2.to_string().contains("secret"), "{}", trail.2);
     let e = client
         .list_motions(grpc_req(
             pb::ListMotionsRequest::default(),

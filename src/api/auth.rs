@@ -64,12 +64,14 @@ const ALL_SCOPES: u8 = Scope::Read as u8 | Scope::Write as u8 | Scope::Admin as 
 /// A token file line: name, scopes, collections (`None` = all), hash.
 pub type TokenLine = (String, u8, Option<Vec<String>>, [u8; 32]);
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 struct Entry {
     name: String,
     scopes: u8,
     collections: Option<Vec<String>>,
     hash: [u8; 32],
+    /// From `--token` (kept when the file is read again).
+    from_flag: bool,
 }
 
 /// Who a request is: a token's name (never the token), or `anonymous`.
@@ -263,6 +265,7 @@ impl Auth {
                 scopes: ALL_SCOPES,
                 collections: None,
                 hash: digest(t),
+                from_flag: true,
             });
         }
         let file = match &cfg.tokens_file {
@@ -280,6 +283,7 @@ impl Auth {
                         scopes,
                         collections,
                         hash,
+                        from_flag: false,
                     });
                 }
                 Some((p.clone(), Mutex::new(mtime)))
@@ -310,36 +314,66 @@ impl Auth {
     }
 
     /// Read the token file again if it changed. Called twice a second by
-    /// the server.
-    pub fn reload(&self) {
-        let Some((path, seen)) = &self.file else {
-            return;
-        };
+    /// the server. Returns what changed (token names only), for the audit
+    /// trail.
+    pub fn reload(&self) -> Option<String> {
+        let (path, seen) = self.file.as_ref()?;
         let mtime = std::fs::metadata(path).and_then(|m| m.modified()).ok();
         let mut seen = seen.lock().expect("mtime");
         if mtime == *seen {
-            return;
+            return None;
         }
         *seen = mtime;
         match read_file(path) {
             Ok((list, _)) => {
                 let mut e = self.entries.write().expect("tokens");
-                let keep_flag: Vec<Entry> =
-                    e.iter().filter(|x| x.name == "token").cloned().collect();
-                *e = keep_flag;
-                let n = list.len();
-                e.extend(
-                    list.into_iter()
-                        .map(|(name, scopes, collections, hash)| Entry {
-                            name,
-                            scopes,
-                            collections,
-                            hash,
-                        }),
+                let old: Vec<Entry> = e.iter().filter(|x| !x.from_flag).cloned().collect();
+                e.retain(|x| x.from_flag);
+                let new: Vec<Entry> = list
+                    .into_iter()
+                    .map(|(name, scopes, collections, hash)| Entry {
+                        name,
+                        scopes,
+                        collections,
+                        hash,
+                        from_flag: false,
+                    })
+                    .filter(|n| !e.iter().any(|f| f.name == n.name))
+                    .collect();
+                let names = |v: &[&Entry]| {
+                    v.iter()
+                        .map(|x| x.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(",")
+                };
+                let added: Vec<&Entry> = new
+                    .iter()
+                    .filter(|n| !old.iter().any(|o| o.name == n.name))
+                    .collect();
+                let removed: Vec<&Entry> = old
+                    .iter()
+                    .filter(|o| !new.iter().any(|n| n.name == o.name))
+                    .collect();
+                let changed: Vec<&Entry> = new
+                    .iter()
+                    .filter(|n| old.iter().any(|o| o.name == n.name && o != *n))
+                    .collect();
+                let summary = format!(
+                    "token file {}: added [{}] removed [{}] changed [{}]",
+                    path.display(),
+                    names(&added),
+                    names(&removed),
+                    names(&changed)
                 );
-                tracing::info!("token file {} read again: {n} tokens", path.display());
+                let any = !added.is_empty() || !removed.is_empty() || !changed.is_empty();
+                e.extend(new);
+                tracing::info!("{summary}");
+                any.then_some(summary)
             }
-            Err(why) => tracing::error!("token file not reloaded, the old tokens stay: {why}"),
+            Err(why) => {
+                tracing::error!("token file not reloaded, the old tokens stay: {why}");
+                None
+            }
         }
     }
 
@@ -434,8 +468,9 @@ fn read_file(p: &Path) -> Result<(Vec<TokenLine>, Option<SystemTime>), String> {
     Ok((parse_tokens(&name, &text)?, mtime))
 }
 
-/// Reload the token file twice a second for as long as `auth` lives.
-pub fn spawn_reloader(auth: Arc<Auth>) {
+/// Reload the token file twice a second for as long as `auth` lives; each
+/// change goes into the audit trail (names only, never secrets).
+pub fn spawn_reloader(auth: Arc<Auth>, store: crate::store::Store) {
     if auth.file.is_none() {
         return;
     }
@@ -445,9 +480,16 @@ pub fn spawn_reloader(auth: Arc<Auth>) {
         let mut tick = tokio::time::interval(Duration::from_millis(500));
         loop {
             tick.tick().await;
-            match weak.upgrade() {
-                Some(a) => a.reload(),
-                None => return,
+            let Some(a) = weak.upgrade() else {
+                return;
+            };
+            if let Some(change) = a.reload() {
+                if let Err(e) = store
+                    .audit_append("token-file", "tokens-change", &change, "")
+                    .await
+                {
+                    tracing::error!("audit trail: {e}");
+                }
             }
         }
     });
