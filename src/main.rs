@@ -121,7 +121,30 @@ struct ReadArgs {
     smooth: Option<f64>,
 }
 
+/// `--fps` for commands that only read (inspect, ingest, query): the
+/// frame rate of a file that carries none, as `--source-fps` (which
+/// `convert` needs, its `--fps` being the output's).
+#[derive(clap::Args, Clone)]
+struct SourceFps {
+    /// Frame rate of a keypoint `.npy` or SMPL-from-video file (the same as
+    /// --source-fps).
+    #[arg(long)]
+    fps: Option<f64>,
+}
+
 impl ReadArgs {
+    /// These options with `--fps` folded into `--source-fps`.
+    fn with_fps(mut self, f: &SourceFps) -> Result<ReadArgs> {
+        match (self.source_fps, f.fps) {
+            (Some(a), Some(b)) if a != b => {
+                bail!("--fps {b} and --source-fps {a} disagree: give one")
+            }
+            (None, Some(b)) => self.source_fps = Some(b),
+            _ => {}
+        }
+        Ok(self)
+    }
+
     fn options(&self) -> ReadOptions {
         ReadOptions {
             bvh: bvh::BvhReadOptions {
@@ -145,6 +168,8 @@ enum Cmd {
         json: bool,
         #[command(flatten)]
         read: ReadArgs,
+        #[command(flatten)]
+        fps: SourceFps,
     },
     /// Convert between formats (.bvh or AMASS .npz out), optionally resampled,
     /// cut, mirrored, root-normalised or reduced/retargeted to 13 joints.
@@ -216,6 +241,8 @@ enum Cmd {
         json: bool,
         #[command(flatten)]
         read: ReadArgs,
+        #[command(flatten)]
+        fps: SourceFps,
     },
     /// The stored windows most like a segment of a motion file.
     Query {
@@ -247,6 +274,8 @@ enum Cmd {
         json: bool,
         #[command(flatten)]
         read: ReadArgs,
+        #[command(flatten)]
+        fps: SourceFps,
     },
     /// Move INPUT's low-frequency features toward TARGET's by gradient
     /// descent (Adam) and write the result (thesis 000 §3.5).
@@ -580,7 +609,12 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
-        Cmd::Inspect { file, json, read } => inspect(&file, json, &read),
+        Cmd::Inspect {
+            file,
+            json,
+            read,
+            fps,
+        } => inspect(&file, json, &read.with_fps(&fps)?),
         Cmd::Convert {
             input,
             output,
@@ -694,7 +728,9 @@ fn run(cli: Cli) -> Result<()> {
             collection,
             json,
             read,
+            fps,
         } => {
+            let read = read.with_fps(&fps)?;
             let labels = parse_pairs("--label", &label)?.into_iter().collect();
             if video.is_some() && (paths.len() != 1 || paths[0].is_dir()) {
                 bail!("--video links one file: give exactly one file to ingest with it");
@@ -730,7 +766,9 @@ fn run(cli: Cli) -> Result<()> {
             exact,
             json,
             read,
+            fps,
         } => {
+            let read = read.with_fps(&fps)?;
             let footage = read.keypoints.is_some() || read.source_fps.is_some();
             let embedding =
                 embedding.unwrap_or_else(|| if footage { "pose" } else { "dct" }.into());
