@@ -92,15 +92,6 @@ impl Principal {
             collections: None,
         }
     }
-    /// Every scope and collection: the server's own callers (the CLI's
-    /// local store access, start-up ingest).
-    pub fn internal() -> Self {
-        Principal {
-            name: "internal".into(),
-            scopes: ALL_SCOPES,
-            collections: None,
-        }
-    }
     pub fn may(&self, s: Scope) -> bool {
         self.scopes & s as u8 != 0
     }
@@ -309,10 +300,6 @@ impl Auth {
     pub fn has_tokens(&self) -> bool {
         !self.entries.read().expect("tokens").is_empty()
     }
-    pub fn public_read(&self) -> bool {
-        self.public_read
-    }
-
     /// Read the token file again if it changed. Called twice a second by
     /// the server. Returns what changed (token names only), for the audit
     /// trail.

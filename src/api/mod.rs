@@ -387,30 +387,33 @@ pub async fn query(
     who: &auth::Principal,
 ) -> Result<Vec<QueryHit>, ApiError> {
     // Motion from video (keypoints, SMPL from an estimator) is searched by
-    // the pose embedding unless the request names another.
-    let footage = match &p.motion {
-        MotionInput::File { read, .. } => read.keypoints.is_some() || read.fps.is_some(),
-        MotionInput::Stored(id) => state
-            .store
-            .motion(*id)
-            .await
-            .ok()
-            .flatten()
-            .filter(|r| who.sees(&r.collection))
-            .is_some_and(|r| r.format == "keypoints" || r.format == "smpl"),
-        MotionInput::Inline(_) => false,
-    };
-    let source = match p.motion {
+    // the pose embedding unless the request names another. A stored id is
+    // looked up once: it must be the caller's to see.
+    let (footage, source) = match p.motion {
+        MotionInput::File { read, name, bytes } => {
+            let footage = read.keypoints.is_some() || read.fps.is_some();
+            let m = state
+                .resolve("motion", MotionInput::File { read, name, bytes }, who)
+                .await?;
+            (footage, QuerySource::Motion(m))
+        }
         MotionInput::Stored(id) => {
-            visible(state, id, who)
-                .await
-                .map_err(|_| ApiError::Missing {
+            let row = visible(state, id, who).await.map_err(|e| match e {
+                ApiError::NotFound(_) => ApiError::Missing {
                     field: "motion.id".into(),
                     reason: format!("no stored motion {id}"),
-                })?;
-            QuerySource::Stored(id)
+                },
+                other => other,
+            })?;
+            (
+                row.format == "keypoints" || row.format == "smpl",
+                QuerySource::Stored(id),
+            )
         }
-        other => QuerySource::Motion(state.resolve("motion", other, who).await?),
+        inline => (
+            false,
+            QuerySource::Motion(state.resolve("motion", inline, who).await?),
+        ),
     };
     let embedding = match p.embedding.as_str() {
         "" if footage => Embedding::Pose,

@@ -9,10 +9,7 @@ pub mod token;
 
 use anyhow::{Context, Result};
 
-/// The `p` quantile (0..=1) of sorted values, nearest rank.
-pub fn percentile(sorted: &[f64], p: f64) -> f64 {
-    sorted[((sorted.len() as f64 - 1.0) * p).round() as usize]
-}
+pub use choreo::service::percentile;
 
 /// Rows of f32 as a 2-D `.npy` (written as f32).
 pub fn write_npy_f32(path: &std::path::Path, rows: &[Vec<f32>]) -> Result<()> {

@@ -11,6 +11,7 @@
 //!   among the k nearest takes); "same moment" asks the nearest window to
 //!   be the right take within ±0.5 s. Chance is 1 / takes.
 
+use super::percentile;
 use crate::features::{channels72, window, window_starts, Embedding, Extractor, StftParams};
 use crate::index::dot;
 use crate::motion::io::{read_path, ReadOptions};
@@ -84,13 +85,6 @@ fn embed_windows(
         .into_iter()
         .map(|s| Ok((s, ex.embed(e, &window(&ch, s), None)?)))
         .collect()
-}
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
 fn ik_rows(

@@ -9,3 +9,11 @@ pub mod ingest;
 pub mod interpolate;
 pub mod keyframes;
 pub mod query;
+
+/// The `p` quantile (0..=1) of sorted values, nearest rank; NaN when empty.
+pub fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
+}
