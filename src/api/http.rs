@@ -414,6 +414,10 @@ fn motion_id(p: Result<Path<i64>, PathRejection>) -> Result<i64, ApiError> {
         .map_err(|e| ApiError::invalid("id", e.body_text()))
 }
 
+async fn model_info(State(s): State<Arc<AppState>>) -> Result<Json<serde_json::Value>, ApiError> {
+    Ok(Json(super::lm::model_info(&s)?))
+}
+
 async fn get_motion(
     State(s): State<Arc<AppState>>,
     Extension(who): Extension<Principal>,
@@ -421,7 +425,11 @@ async fn get_motion(
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let (row, m) = super::get_motion(&s, motion_id(id)?, &who).await?;
     Ok(Json(
-        json!({ "motion": summary(&row), "data": MotionJson::from_motion(&m) }),
+        json!({
+            "motion": summary(&row),
+            "data": MotionJson::from_motion(&m),
+            "skeleton": super::lm::skeleton_json(&m.skeleton),
+        }),
     ))
 }
 
@@ -769,6 +777,7 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
         .route("/v1/generate/ws", get(super::ws::generate))
         .route("/v1/duet/ws", get(super::ws::duet))
         .route("/v1/classify", post(classify))
+        .route("/v1/model", get(model_info))
         .route("/v1/motions", get(list_motions).post(ingest))
         .route("/v1/motions/{id}", get(get_motion).delete(delete_motion))
         .route("/v1/motions/{id}/bvh", get(export_motion))
@@ -787,6 +796,7 @@ pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
                 )
             }),
         )
+        .merge(super::studio::routes())
         .layer(DefaultBodyLimit::max(max_body))
         .route_layer(axum::middleware::from_fn_with_state(
             state.clone(),

@@ -353,3 +353,36 @@ pub async fn classify(
         })
         .await
 }
+
+/// What the loaded model offers a client (`GET /v1/model`): its kind, frame
+/// rate, skeleton (joint names in frame order, parents, rest offsets),
+/// the joints a prompt may force, the label values it was trained on, its
+/// context, and the longest generation a request may ask for.
+pub fn model_info(state: &AppState) -> Result<serde_json::Value, ApiError> {
+    let s = model(state)?;
+    let v = s.vocabulary();
+    let skeleton = v.skeleton_def().map(|k| skeleton_json(&k));
+    Ok(serde_json::json!({
+        "kind": s.kind(),
+        "fps": v.fps,
+        "skeleton": skeleton,
+        "prompt_joints": v.joints,
+        "labels": v.labels,
+        "conditioned_on": s.cond_kinds(),
+        "context_frames": s.context_frames(),
+        "max_frames": MAX_GENERATE_FRAMES,
+        "inbetweener": state.inbetweener.is_some(),
+    }))
+}
+
+/// A skeleton as JSON: `{kind, names, parents (null for the root), offsets
+/// (metres, each in its parent's frame; the root's is its rest position)}`.
+/// Forward kinematics with these gives the server's joint positions.
+pub fn skeleton_json(k: &crate::motion::Skeleton) -> serde_json::Value {
+    serde_json::json!({
+        "kind": k.kind,
+        "names": k.names,
+        "parents": k.parents,
+        "offsets": k.offsets,
+    })
+}

@@ -11,6 +11,7 @@ pub mod grpc;
 pub mod http;
 pub mod lm;
 pub mod metrics;
+pub mod studio;
 pub mod ws;
 
 use crate::features::interpolate::{lowpass as lowpass_channels, to_f64, InterpolateOptions};
