@@ -313,6 +313,11 @@ try {
   results.cors_refused = r2;
 } catch (e) {
   failed = e;
+  // What the page showed when the check failed.
+  try {
+    const pages = browser.contexts().flatMap((c) => c.pages());
+    if (pages.length) await pages[0].screenshot({ path: args["failure-shot"] || "studio-failure.png" });
+  } catch (_) {}
 } finally {
   await browser.close();
   for (const s of origins) s.close();

@@ -548,6 +548,7 @@ async function duet() {
   });
   const performerFrames = idx.map((i) => perf.frames[i]);
   const partnerFrames = [];
+  window.__studio.streamed = 0;
   stage.clear();
   const perfRig = stage.addRig(perf.skeleton, GREY, centre(performerFrames, 0, -0.9));
   const partRig = stage.addRig(m.skeleton, ORANGE, [0.9, 0]);
@@ -635,6 +636,7 @@ async function route() {
   for (const a of document.querySelectorAll("nav a")) a.classList.toggle("active", a.dataset.page === show);
   window.__studio.ready = false;
   window.__studio.page = show;
+  window.__studio.streamed = 0;
   stage.clear();
   player.setClips([], { play: false });
   legend([]);
