@@ -80,12 +80,15 @@ async fn studio_pages_work_in_chromium() {
     let running = start(&cfg).await.unwrap();
     let url = format!("http://{}", running.http);
     let fk_out = dir.path().join("fk.json");
+    let gltf_out = dir.path().join("gltf.json");
     let mut cmd = Command::new("node");
     cmd.arg(root.join("tests/browser/studio.mjs"))
         .args(["--url", &url, "--token", "studio-secret"])
         .args(["--cors-port", &cors_port.to_string()])
         .arg("--fk-out")
         .arg(&fk_out)
+        .arg("--gltf-out")
+        .arg(&gltf_out)
         .arg("--chromium")
         .arg(chromium());
     if let Some(shots) = std::env::var_os("CHOREO_SCREENSHOTS") {
@@ -107,8 +110,29 @@ async fn studio_pages_work_in_chromium() {
     assert!(results["generate_first_frame_ms"].as_f64().is_some());
 
     // The browser's forward kinematics (what the studio draws) equals the
-    // server's, on the same stored motions and frames.
-    let fk: Value = serde_json::from_slice(&std::fs::read(&fk_out).unwrap()).unwrap();
+    // server's on the same stored and generated frames, and so do the joints
+    // of the API's glb as three.js's GLTFLoader and AnimationMixer pose them.
+    let studio = worst_vs_server(running.http, &fk_out);
+    println!("studio FK vs server FK: worst {studio:.2e} m");
+    let gltf = worst_vs_server(running.http, &gltf_out);
+    println!("glb in three.js (GLTFLoader + AnimationMixer) vs server FK: worst {gltf:.2e} m");
+    // Both sides end in float32: about 1e-7 relative.
+    assert!(
+        studio < 1e-5,
+        "the studio's FK differs from the server's by {studio} m"
+    );
+    assert!(
+        gltf < 1e-5,
+        "the glb as three.js plays it differs from the server's FK by {gltf} m"
+    );
+    running.shutdown().await.unwrap();
+}
+
+/// The largest difference (metres) between the joint positions in `path`
+/// (`[{id | generated + skeleton, frames, positions}]`, from the browser)
+/// and the server's FK of the same frames.
+fn worst_vs_server(http: std::net::SocketAddr, path: &Path) -> f64 {
+    let fk: Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
     let mut worst = 0.0f64;
     for m in fk.as_array().unwrap() {
         // A stored motion (its data and skeleton from the server), or a
@@ -118,8 +142,7 @@ async fn studio_pages_work_in_chromium() {
         } else {
             let id = m["id"].as_i64().unwrap();
             let (_, _, body) =
-                support::exchange(running.http, "GET", &format!("/v1/motions/{id}"), None, None)
-                    .unwrap();
+                support::exchange(http, "GET", &format!("/v1/motions/{id}"), None, None).unwrap();
             (body["data"].clone(), body["skeleton"].clone())
         };
         let data: MotionJson = serde_json::from_value(data).unwrap();
@@ -150,8 +173,5 @@ async fn studio_pages_work_in_chromium() {
             }
         }
     }
-    println!("browser FK vs server FK: worst {worst:.2e} m");
-    // The browser keeps positions as float32: about 1e-7 relative.
-    assert!(worst < 1e-5, "browser FK differs from the server's by {worst} m");
-    running.shutdown().await.unwrap();
+    worst
 }

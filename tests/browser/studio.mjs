@@ -281,9 +281,25 @@ try {
   const other = corsPort ? null : await servePage();
   const allowed = corsPort;
   if (allowed) {
-    const s = createServer((_, res) => {
+    // The allowed origin also serves three.js from web/node_modules, so a
+    // page there can open the API's glb in three's own GLTFLoader.
+    const threeDir = new URL("../../web/node_modules/three/", import.meta.url).pathname;
+    const s = createServer((req, res) => {
+      const path = decodeURIComponent(new URL(req.url, "http://x").pathname);
+      if (path.startsWith("/three/") && path.endsWith(".js") && !path.includes("..")) {
+        try {
+          const body = readFileSync(threeDir + path.slice("/three/".length));
+          res.writeHead(200, { "content-type": "text/javascript" });
+          res.end(body);
+        } catch (_) {
+          res.writeHead(404);
+          res.end();
+        }
+        return;
+      }
       res.writeHead(200, { "content-type": "text/html" });
-      res.end("<!doctype html><title>studio elsewhere</title><link rel=icon href='data:,'><p>allowed origin</p>");
+      res.end(`<!doctype html><title>studio elsewhere</title><link rel=icon href='data:,'>
+        <script type="importmap">{"imports": {"three": "/three/build/three.module.js"}}</script><p>allowed origin</p>`);
     });
     await new Promise((r) => s.listen(allowed, "127.0.0.1", r));
     origins.push(s);
@@ -308,6 +324,51 @@ try {
     check(r.ok && r.motions > 0, `a page on the allowed origin could not call the API: ${JSON.stringify(r)}`);
     results.cors_allowed = r;
   }
+  if (allowed) {
+    // three.js's GLTFLoader opens the API's glb; its animation, played by
+    // three's AnimationMixer, poses the joints (the test holds them against
+    // the server's FK).
+    step = "glTF in three.js";
+    const p = await context.newPage();
+    await p.goto(`http://127.0.0.1:${allowed}/`);
+    const gltf = await p.evaluate(async ([api, tok]) => {
+      const THREE = await import("three");
+      const { GLTFLoader } = await import("/three/examples/jsm/loaders/GLTFLoader.js");
+      const list = (await (await fetch(`${api}/v1/motions`, { headers: { Authorization: `Bearer ${tok}` } })).json()).motions;
+      const out = [];
+      for (const m of [list[0], list[list.length - 1]]) {
+        const buf = await (await fetch(`${api}/v1/motions/${m.id}/glb`, { headers: { Authorization: `Bearer ${tok}` } })).arrayBuffer();
+        const g = await new Promise((res, rej) => new GLTFLoader().parse(buf, "", res, rej));
+        const nodes = await g.parser.getDependencies("node");
+        const mixer = new THREE.AnimationMixer(g.scene);
+        const action = mixer.clipAction(g.animations[0]);
+        // Played once and held at the end: the last frame's time is the
+        // clip's duration, where a looping action would wrap to frame 0.
+        action.setLoop(THREE.LoopOnce);
+        action.clampWhenFinished = true;
+        action.play();
+        let skinned = 0;
+        g.scene.traverse((o) => { if (o.isSkinnedMesh) skinned++; });
+        const frames = [0, Math.floor(m.frames / 2), m.frames - 1];
+        const positions = frames.map((f) => {
+          mixer.setTime(f / m.fps);
+          g.scene.updateMatrixWorld(true);
+          const v = new THREE.Vector3();
+          return nodes.slice(0, m.joints).flatMap((n) => n.getWorldPosition(v).toArray());
+        });
+        out.push({ id: m.id, source: "glTF", frames, positions, skinned, duration: g.animations[0].duration, fps: m.fps, count: m.frames });
+      }
+      return out;
+    }, [url, token]);
+    await p.close();
+    for (const g of gltf) {
+      check(g.skinned === 1, `motion ${g.id}: ${g.skinned} skinned meshes`);
+      check(Math.abs(g.duration - (g.count - 1) / g.fps) < 1e-3, `motion ${g.id}: animation lasts ${g.duration} s`);
+    }
+    results.gltf_loader = gltf.map((g) => ({ id: g.id, skinned: g.skinned, duration_s: g.duration }));
+    if (args["gltf-out"]) writeFileSync(args["gltf-out"], JSON.stringify(gltf));
+  }
+  step = "cross-origin";
   const r2 = await call(refused);
   check(!r2.ok && r2.error, `a page on another origin read the API without CORS: ${JSON.stringify(r2)}`);
   results.cors_refused = r2;
