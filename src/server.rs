@@ -17,6 +17,17 @@ pub struct ServeConfig {
     /// Folder holding the SQLite store (choreo.db) and its HNSW indexes.
     #[arg(long, env = "CHOREO_DATA_DIR", default_value = "choreo-data")]
     pub data_dir: PathBuf,
+    /// The store: a PostgreSQL URL (`postgres://USER:PASSWORD@HOST:PORT/DB`)
+    /// that several replicas share, or a SQLite file. Default: the embedded
+    /// SQLite file DATA_DIR/choreo.db. With PostgreSQL, --data-dir keeps
+    /// only this replica's index dumps.
+    #[arg(long, env = "CHOREO_STORE", hide_env_values = true)]
+    pub store: Option<String>,
+    /// How often (ms) the server looks for writes made by other processes
+    /// on the same store (other replicas, `choreo ingest`); a write through
+    /// any replica is visible through this one within about this long.
+    #[arg(long, env = "CHOREO_SYNC_MS", default_value_t = 500)]
+    pub sync_ms: u64,
     /// Address both listeners bind to.
     #[arg(long, env = "CHOREO_BIND", default_value = "127.0.0.1")]
     pub bind: String,
@@ -185,8 +196,14 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     cors_layer(&cfg.cors_origins)?;
     std::fs::create_dir_all(&cfg.data_dir)
         .with_context(|| format!("--data-dir {}", cfg.data_dir.display()))?;
-    let db = cfg.data_dir.join("choreo.db");
-    let store = Store::open(&db).await?;
+    let location = match &cfg.store {
+        Some(s) => crate::store::Location::parse(s).map_err(|e| anyhow::anyhow!("--store: {e}"))?,
+        None => crate::store::Location::Sqlite(cfg.data_dir.join("choreo.db")),
+    };
+    let store = Store::open_at(&location, Some(&cfg.data_dir))
+        .await
+        .context("--store")?;
+    tracing::info!("store: {}", store.label());
     if !cfg.ingest.is_empty() {
         let r =
             crate::service::ingest::ingest(&store, &cfg.ingest, &Default::default(), &|_, _, _| {})
@@ -274,6 +291,11 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     state
         .searcher
         .spawn_maintenance(std::time::Duration::from_millis(500));
+    if cfg.sync_ms > 0 {
+        state
+            .searcher
+            .spawn_sync(std::time::Duration::from_millis(cfg.sync_ms));
+    }
     let max = cfg.max_body_mb.max(1) << 20;
     let http_l = tokio::net::TcpListener::bind((cfg.bind.as_str(), cfg.http_port))
         .await

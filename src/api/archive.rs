@@ -59,7 +59,7 @@ pub async fn ingest(
             .store
             .collections()
             .await
-            .map_err(internal)?
+            .map_err(ApiError::from)?
             .contains(&collection)
     {
         return Err(ApiError::Missing {
@@ -122,7 +122,7 @@ pub async fn ingest(
         .searcher
         .ingest(&name, bytes, &opts)
         .await
-        .map_err(internal)?
+        .map_err(ApiError::from)?
         .map_err(|e| prefix("motion", e.into()))?;
     let (action, target) = match out.stored {
         Stored::New { motion_id, windows } => (
@@ -145,7 +145,7 @@ pub async fn ingest(
         .store
         .audit_append(&actor.name, action, &target, &actor.request_id)
         .await
-        .map_err(internal)?;
+        .map_err(ApiError::from)?;
     Ok(out)
 }
 
@@ -157,7 +157,7 @@ pub async fn audit(state: &AppState, limit: i64) -> Result<Vec<crate::store::Aud
             format!("{limit} is not in 1..=10000"),
         ));
     }
-    state.store.audit(limit).await.map_err(internal)
+    state.store.audit(limit).await.map_err(ApiError::from)
 }
 
 /// A stored motion's row, when the caller may see it: a motion of a
@@ -171,7 +171,7 @@ pub async fn visible(
         .store
         .motion(id)
         .await
-        .map_err(internal)?
+        .map_err(ApiError::from)?
         .filter(|r| who.sees(&r.collection))
         .ok_or_else(|| ApiError::NotFound(format!("motion {id}")))
 }
@@ -232,7 +232,7 @@ pub async fn delete_motion(
     actor: &Actor,
 ) -> Result<(), ApiError> {
     visible(state, id, who).await?;
-    if !state.searcher.delete(id).await.map_err(internal)? {
+    if !state.searcher.delete(id).await.map_err(ApiError::from)? {
         return Err(ApiError::NotFound(format!("motion {id}")));
     }
     state
@@ -244,7 +244,7 @@ pub async fn delete_motion(
             &actor.request_id,
         )
         .await
-        .map_err(internal)
+        .map_err(ApiError::from)
 }
 
 pub async fn list_motions(
@@ -255,7 +255,7 @@ pub async fn list_motions(
         .store
         .motions()
         .await
-        .map_err(|e| ApiError::Internal(e.to_string()))?;
+        .map_err(ApiError::from)?;
     rows.retain(|r| who.sees(&r.collection));
     Ok(rows)
 }
@@ -265,7 +265,7 @@ pub async fn list_collections(
     state: &AppState,
     who: &auth::Principal,
 ) -> Result<Vec<String>, ApiError> {
-    let mut all = state.store.collections().await.map_err(internal)?;
+    let mut all = state.store.collections().await.map_err(ApiError::from)?;
     all.retain(|c| who.sees(c));
     Ok(all)
 }
@@ -287,7 +287,7 @@ pub async fn create_collection(
         .store
         .create_collection(name)
         .await
-        .map_err(internal)?;
+        .map_err(ApiError::from)?;
     if created {
         state
             .store
@@ -298,7 +298,7 @@ pub async fn create_collection(
                 &actor.request_id,
             )
             .await
-            .map_err(internal)?;
+            .map_err(ApiError::from)?;
     }
     Ok(created)
 }

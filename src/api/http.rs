@@ -424,13 +424,11 @@ async fn get_motion(
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let (row, m) = super::get_motion(&s, motion_id(id)?, &who).await?;
-    Ok(Json(
-        json!({
-            "motion": summary(&row),
-            "data": MotionJson::from_motion(&m),
-            "skeleton": super::lm::skeleton_json(&m.skeleton),
-        }),
-    ))
+    Ok(Json(json!({
+        "motion": summary(&row),
+        "data": MotionJson::from_motion(&m),
+        "skeleton": super::lm::skeleton_json(&m.skeleton),
+    })))
 }
 
 /// A download: its content type and file name.

@@ -22,6 +22,7 @@ use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::{Motion, MotionError};
 pub use crate::service::ingest::Stored;
 use crate::service::ingest::{load_motion, LoadError};
+use crate::store::StoreError;
 use crate::service::interpolate::{interpolate_motions, with_channels, InterpolateReport};
 use crate::service::keyframes::{
     reconstruct, Inbetween, KeyframeReport, KeyframeRequest, LearnedModel, Music, Select,
@@ -158,7 +159,7 @@ impl From<QueryError> for ApiError {
                 field: "motion.id".into(),
                 reason: format!("no stored motion {id}"),
             },
-            QueryError::Store(e) => ApiError::Internal(e.to_string()),
+            QueryError::Store(e) => e.into(),
             other => ApiError::Internal(other.to_string()),
         }
     }
@@ -224,6 +225,20 @@ impl From<LoadError> for ApiError {
             // The row is there but its source file moved or changed (it was
             // ingested from disk without --keep-files).
             LoadError::Gone(reason) => ApiError::NotFound(reason),
+            LoadError::Store(e) => e.into(),
+        }
+    }
+}
+
+/// A store error as the API answers it: an unreachable database (a
+/// PostgreSQL restart) is 503 / UNAVAILABLE, so clients retry; anything
+/// else is an internal error.
+impl From<StoreError> for ApiError {
+    fn from(e: StoreError) -> Self {
+        match e {
+            StoreError::Unavailable { .. } => {
+                ApiError::Unavailable("the store is unavailable; retry shortly".into())
+            }
             other => ApiError::Internal(other.to_string()),
         }
     }

@@ -288,8 +288,18 @@ pub async fn ingest_bytes(
     match prepared {
         Ok(Ok(m)) => {
             let windows = m.windows.len();
-            let (motion_id, _) = store.insert_motion(&m).await?;
-            Ok(Ok(Stored::New { motion_id, windows }))
+            match store.insert_motion(&m).await {
+                Ok((motion_id, _)) => Ok(Ok(Stored::New { motion_id, windows })),
+                // Another replica stored it since the lookup.
+                Err(StoreError::Duplicate { .. }) => match store.motion_by_hash(&m.content_hash).await? {
+                    Some(id) => Ok(Ok(Stored::Existing { motion_id: id })),
+                    None => Err(StoreError::Duplicate {
+                        path: store.label().to_string(),
+                        hash: m.content_hash.clone(),
+                    }),
+                },
+                Err(e) => Err(e),
+            }
         }
         Ok(Err(e)) | Err(e) => Ok(Err(e)),
     }

@@ -148,12 +148,19 @@ pub struct Searcher {
     writes: tokio::sync::Mutex<()>,
     /// Woken after each write; the maintenance task waits on it.
     wake: Arc<tokio::sync::Notify>,
+    /// The store generation the catalog and indexes were last brought up
+    /// to date with ([`Searcher::sync`]).
+    synced: std::sync::atomic::AtomicI64,
+    /// The stored PCA model's fingerprint the catalog's basis came from
+    /// (-1: none), so a basis refitted by another process is noticed.
+    pca_fit: std::sync::atomic::AtomicI64,
 }
 
 impl Searcher {
     /// Read the store's window map, motions and PCA basis (refitted first
     /// when [`ingest::pca_due`]).
     pub async fn open(store: Store, params: HnswParams) -> Result<Searcher, QueryError> {
+        let generation = store.generation().await?;
         ingest::backfill_pose(&store).await?;
         let pca = if ingest::pca_due(&store).await? {
             ingest::refit_pca(&store).await?.map(|(p, _)| p)
@@ -175,13 +182,17 @@ impl Searcher {
             .map(|m| (m.id, m))
             .collect();
         Ok(Searcher {
-            store,
             extractor: Extractor::new(StftParams::default())?,
             params,
             catalog: RwLock::new(catalog),
             indexes: Mutex::new(HashMap::new()),
             writes: tokio::sync::Mutex::new(()),
             wake: Arc::new(tokio::sync::Notify::new()),
+            synced: std::sync::atomic::AtomicI64::new(generation),
+            pca_fit: std::sync::atomic::AtomicI64::new(
+                store.model("pca").await?.map_or(-1, |(g, _)| g),
+            ),
+            store,
         })
     }
 

@@ -1,15 +1,19 @@
-//! The SQLite store (sqlx), the source of truth: motions, their labels and
-//! canonical channels, windows, embeddings, fitted models. Migrations in
-//! `migrations/` run at open. Every write is one transaction that also bumps
-//! `meta.generation`, which on-disk indexes compare against.
+//! The store (sqlx), the source of truth: motions, their labels and
+//! canonical channels, windows, embeddings, fitted models, the audit trail.
+//! Two engines behind one API, through sqlx's `Any` driver: SQLite, one
+//! embedded file (the default), and PostgreSQL, shared by many `choreo
+//! serve` replicas. Each has its migrations (`migrations/sqlite`,
+//! `migrations/postgres`), run at open; the SQL below is written once for
+//! both (`$n` parameters), except where the dialects differ. Every write is
+//! one transaction that also bumps `meta.generation`, which on-disk indexes
+//! and other replicas compare against.
 
 use crate::features::{Embedding, CHANNELS};
 use crate::motion::io::ReadOptions;
 use crate::motion::Labels;
-use sqlx::sqlite::{
-    SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteSynchronous,
-};
-use sqlx::Row;
+use sqlx::any::{AnyPoolOptions, AnyRow};
+use sqlx::AnyPool;
+use sqlx::{Executor, Row};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -33,6 +37,67 @@ pub enum StoreError {
         field: String,
         reason: String,
     },
+    /// The database cannot be reached (PostgreSQL down or restarting, a
+    /// network cut): retry later. The API answers 503 / UNAVAILABLE.
+    #[error("{path}: the store is unavailable: {reason}")]
+    Unavailable { path: String, reason: String },
+    /// Another writer (a replica) stored the same content first.
+    #[error("{path}: content {hash} is stored already")]
+    Duplicate { path: String, hash: String },
+    /// A store migrated by a newer choreo.
+    #[error("{path}: the store was migrated by a newer choreo (it has migration {found}; this build knows migrations up to {known}): upgrade choreo, or point it at another store")]
+    TooNew { path: String, found: i64, known: i64 },
+}
+
+/// Which engine a store runs on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dialect {
+    Sqlite,
+    Postgres,
+}
+
+/// Where the store lives: a SQLite file (`--data-dir`), or a PostgreSQL
+/// URL (`--store postgres://…`).
+#[derive(Clone, Debug)]
+pub enum Location {
+    Sqlite(PathBuf),
+    Postgres(String),
+}
+
+impl Location {
+    /// A `--store` value: `postgres://` / `postgresql://` URLs, or
+    /// `sqlite://PATH` / a plain path for SQLite.
+    pub fn parse(s: &str) -> std::result::Result<Location, String> {
+        let lower = s.to_ascii_lowercase();
+        if lower.starts_with("postgres://") || lower.starts_with("postgresql://") {
+            return Ok(Location::Postgres(s.to_string()));
+        }
+        if let Some(p) = s.strip_prefix("sqlite://") {
+            return Ok(Location::Sqlite(PathBuf::from(p)));
+        }
+        if s.contains("://") {
+            return Err(format!(
+                "'{}' is not a store: give postgres://USER@HOST:PORT/DB, sqlite://PATH, or a file path",
+                redact(s)
+            ));
+        }
+        Ok(Location::Sqlite(PathBuf::from(s)))
+    }
+}
+
+/// A URL with its password replaced by `***`, for messages and logs.
+pub fn redact(url: &str) -> String {
+    let Some((scheme, rest)) = url.split_once("://") else {
+        return url.to_string();
+    };
+    let (auth, host) = match rest.rsplit_once('@') {
+        Some(x) => x,
+        None => return url.to_string(),
+    };
+    match auth.split_once(':') {
+        Some((user, _)) => format!("{scheme}://{user}:***@{host}"),
+        None => url.to_string(),
+    }
 }
 
 pub type Result<T> = std::result::Result<T, StoreError>;
@@ -132,56 +197,160 @@ pub fn blob_to_f32s(b: &[u8]) -> Option<Vec<f32>> {
 
 #[derive(Clone)]
 pub struct Store {
-    pool: SqlitePool,
+    pool: AnyPool,
+    dialect: Dialect,
+    /// The SQLite file, or for PostgreSQL a local path that names this
+    /// replica's index dumps (`DATA_DIR/postgres`).
     path: PathBuf,
+    /// What errors and logs call the store (the file, or the URL without
+    /// its password).
+    label: String,
 }
 
+const INSERT_MOTION_SQLITE: &str = "INSERT INTO motions (id, source_path, content_hash, format, fps, frames, joints, skeleton, duration_s, labels, read_options, video, video_offset_s, collection)
+     VALUES ((SELECT last + 1 FROM motion_id_seq), $1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13) RETURNING id";
+const INSERT_MOTION_POSTGRES: &str = "INSERT INTO motions (id, source_path, content_hash, format, fps, frames, joints, skeleton, duration_s, labels, read_options, video, video_offset_s, collection)
+     VALUES (nextval('motion_ids'), $1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13) RETURNING id";
+
+static SQLITE_MIGRATIONS: sqlx::migrate::Migrator = sqlx::migrate!("./migrations/sqlite");
+static POSTGRES_MIGRATIONS: sqlx::migrate::Migrator = sqlx::migrate!("./migrations/postgres");
+
+/// How long a request waits for a database connection before the store
+/// answers "unavailable" (PostgreSQL down) rather than hanging.
+const ACQUIRE_TIMEOUT: Duration = Duration::from_secs(3);
+
 impl Store {
-    /// Open (creating if missing) and migrate.
+    /// Open (creating if missing) and migrate a SQLite store.
     pub async fn open(path: &Path) -> Result<Store> {
-        let p = path.display().to_string();
-        let opts = SqliteConnectOptions::new()
-            .filename(path)
-            .create_if_missing(true)
-            .journal_mode(SqliteJournalMode::Wal)
-            .synchronous(SqliteSynchronous::Normal)
-            .foreign_keys(true)
-            .busy_timeout(Duration::from_secs(30));
-        let pool = SqlitePoolOptions::new()
-            .max_connections(4)
-            .connect_with(opts)
-            .await
-            .map_err(|source| StoreError::Db {
-                path: p.clone(),
-                source,
-            })?;
-        sqlx::migrate!("./migrations")
+        Store::open_at(&Location::Sqlite(path.to_path_buf()), path.parent()).await
+    }
+
+    /// Open and migrate the store at `loc`. A PostgreSQL store keeps this
+    /// replica's index dumps under `index_dir` (the data dir).
+    pub async fn open_at(loc: &Location, index_dir: Option<&Path>) -> Result<Store> {
+        sqlx::any::install_default_drivers();
+        let (url, dialect, path, label) = match loc {
+            Location::Sqlite(p) => {
+                // sqlx reads `sqlite://PATH?mode=rwc`; an absolute path keeps
+                // a relative one from being read as a host.
+                let abs = match (p.parent(), p.file_name()) {
+                    (Some(dir), Some(name)) if !dir.as_os_str().is_empty() => {
+                        std::fs::create_dir_all(dir).ok();
+                        dir.canonicalize()
+                            .map(|d| d.join(name))
+                            .unwrap_or_else(|_| p.clone())
+                    }
+                    _ => std::env::current_dir()
+                        .map(|d| d.join(p))
+                        .unwrap_or_else(|_| p.clone()),
+                };
+                let enc = abs.display().to_string().replace('%', "%25").replace('?', "%3F").replace('#', "%23");
+                (
+                    format!("sqlite://{enc}?mode=rwc"),
+                    Dialect::Sqlite,
+                    p.clone(),
+                    p.display().to_string(),
+                )
+            }
+            Location::Postgres(u) => (
+                u.clone(),
+                Dialect::Postgres,
+                index_dir.unwrap_or(Path::new(".")).join("postgres"),
+                redact(u),
+            ),
+        };
+        let lbl = label.clone();
+        let fail = move |source: sqlx::Error| classify(&lbl, source);
+        let opts = AnyPoolOptions::new()
+            .max_connections(match dialect {
+                Dialect::Sqlite => 4,
+                Dialect::Postgres => 8,
+            })
+            .acquire_timeout(ACQUIRE_TIMEOUT)
+            .after_connect(move |conn, _| {
+                Box::pin(async move {
+                    if dialect == Dialect::Sqlite {
+                        for pragma in [
+                            "PRAGMA foreign_keys = ON",
+                            "PRAGMA busy_timeout = 30000",
+                            "PRAGMA journal_mode = WAL",
+                            "PRAGMA synchronous = NORMAL",
+                        ] {
+                            conn.execute(pragma).await?;
+                        }
+                    }
+                    Ok(())
+                })
+            });
+        if dialect == Dialect::Postgres {
+            // One direct connection first: its error says why (refused,
+            // unknown host, authentication), where the pool's would only
+            // say that it timed out.
+            let conn = <sqlx::AnyConnection as sqlx::Connection>::connect(&url)
+                .await
+                .map_err(&fail)?;
+            let _ = sqlx::Connection::close(conn).await;
+        }
+        let pool = opts.connect(&url).await.map_err(&fail)?;
+        let migrator = match dialect {
+            Dialect::Sqlite => &SQLITE_MIGRATIONS,
+            Dialect::Postgres => &POSTGRES_MIGRATIONS,
+        };
+        // Refuse a store migrated by a newer choreo, naming the versions.
+        let known = migrator.iter().map(|m| m.version).max().unwrap_or(0);
+        let mut conn = pool.acquire().await.map_err(&fail)?;
+        let newest: Option<i64> = sqlx::query_scalar(
+            "SELECT MAX(version) FROM _sqlx_migrations WHERE success",
+        )
+        .fetch_one(&mut *conn)
+        .await
+        .unwrap_or(None);
+        drop(conn);
+        if let Some(found) = newest.filter(|v| *v > known) {
+            return Err(StoreError::TooNew {
+                path: label,
+                found,
+                known,
+            });
+        }
+        migrator
             .run(&pool)
             .await
             .map_err(|source| StoreError::Migrate {
-                path: p.clone(),
+                path: label.clone(),
                 source,
             })?;
         Ok(Store {
             pool,
-            path: path.to_path_buf(),
+            dialect,
+            path,
+            label,
         })
     }
 
+    pub fn dialect(&self) -> Dialect {
+        self.dialect
+    }
+
+    /// What messages call the store: its file, or its URL without the
+    /// password.
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// The SQLite file, or for PostgreSQL the local base name of this
+    /// replica's index dumps.
     pub fn path(&self) -> &Path {
         &self.path
     }
 
     fn db(&self, source: sqlx::Error) -> StoreError {
-        StoreError::Db {
-            path: self.path.display().to_string(),
-            source,
-        }
+        classify(&self.label, source)
     }
 
     fn corrupt(&self, field: &str, reason: impl Into<String>) -> StoreError {
         StoreError::Corrupt {
-            path: self.path.display().to_string(),
+            path: self.label.clone(),
             field: field.into(),
             reason: reason.into(),
         }
@@ -190,6 +359,15 @@ impl Store {
     /// SQLite's `PRAGMA integrity_check` and `foreign_key_check`: `Ok(())`
     /// when both find nothing wrong.
     pub async fn integrity_check(&self) -> Result<()> {
+        if self.dialect == Dialect::Postgres {
+            // PostgreSQL enforces its foreign keys on every write; reaching
+            // it is the check.
+            sqlx::query("SELECT 1")
+                .execute(&self.pool)
+                .await
+                .map_err(|e| self.db(e))?;
+            return Ok(());
+        }
         let r: String = sqlx::query_scalar("PRAGMA integrity_check")
             .fetch_one(&self.pool)
             .await
@@ -220,7 +398,7 @@ impl Store {
     }
 
     pub async fn motion_by_hash(&self, hash: &str) -> Result<Option<i64>> {
-        sqlx::query_scalar("SELECT id FROM motions WHERE content_hash = ?")
+        sqlx::query_scalar("SELECT id FROM motions WHERE content_hash = $1")
             .bind(hash)
             .fetch_optional(&self.pool)
             .await
@@ -233,10 +411,13 @@ impl Store {
     pub async fn insert_motion(&self, m: &NewMotion) -> Result<(i64, Vec<i64>)> {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
         let labels = serde_json::to_string(&m.labels).unwrap_or_else(|_| "{}".into());
-        let id: i64 = sqlx::query_scalar(
-            "INSERT INTO motions (id, source_path, content_hash, format, fps, frames, joints, skeleton, duration_s, labels, read_options, video, video_offset_s, collection)
-             VALUES ((SELECT last + 1 FROM motion_id_seq), ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
-        )
+        // The next motion id: SQLite keeps the highest id ever given in a
+        // table (one writer); PostgreSQL's sequence serves many writers.
+        let sql = match self.dialect {
+            Dialect::Sqlite => INSERT_MOTION_SQLITE,
+            Dialect::Postgres => INSERT_MOTION_POSTGRES,
+        };
+        let inserted: std::result::Result<i64, sqlx::Error> = sqlx::query_scalar(sql)
         .bind(&m.source_path)
         .bind(&m.content_hash)
         .bind(&m.format)
@@ -254,14 +435,25 @@ impl Store {
         .bind(m.video.as_ref().map(|v| v.video_offset_s))
         .bind(&m.collection)
         .fetch_one(&mut *tx)
-        .await
-        .map_err(|e| self.db(e))?;
+        .await;
+        let id = match inserted {
+            Ok(id) => id,
+            // Another replica stored the same content between the caller's
+            // lookup and this insert: the caller answers with its id.
+            Err(sqlx::Error::Database(e)) if e.is_unique_violation() => {
+                return Err(StoreError::Duplicate {
+                    path: self.label.clone(),
+                    hash: m.content_hash.clone(),
+                })
+            }
+            Err(e) => return Err(self.db(e)),
+        };
         insert_labels(&mut tx, id, &m.labels)
             .await
             .map_err(|e| self.db(e))?;
         let flat: Vec<f32> = m.channels.iter().flat_map(|r| r.iter().copied()).collect();
         sqlx::query(
-            "INSERT INTO motion_channels (motion_id, fps, frames, data) VALUES (?, 60.0, ?, ?)",
+            "INSERT INTO motion_channels (motion_id, fps, frames, data) VALUES ($1, 60.0, $2, $3)",
         )
         .bind(id)
         .bind(m.channels.len() as i64)
@@ -270,7 +462,7 @@ impl Store {
         .await
         .map_err(|e| self.db(e))?;
         if let Some((name, bytes)) = &m.file {
-            sqlx::query("INSERT INTO motion_files (motion_id, name, bytes) VALUES (?, ?, ?)")
+            sqlx::query("INSERT INTO motion_files (motion_id, name, bytes) VALUES ($1, $2, $3)")
                 .bind(id)
                 .bind(name)
                 .bind(bytes)
@@ -280,7 +472,7 @@ impl Store {
         }
         let mut window_ids = Vec::with_capacity(m.windows.len());
         for w in &m.windows {
-            let wid: i64 = sqlx::query_scalar("INSERT INTO windows (motion_id, start_frame, frames) VALUES (?, ?, ?) RETURNING id")
+            let wid: i64 = sqlx::query_scalar("INSERT INTO windows (motion_id, start_frame, frames) VALUES ($1, $2, $3) RETURNING id")
                 .bind(id)
                 .bind(w.start_frame as i64)
                 .bind(w.frames as i64)
@@ -304,7 +496,7 @@ impl Store {
     pub async fn merge_labels(&self, id: i64, labels: &Labels) -> Result<Option<Labels>> {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
         let Some(current): Option<String> =
-            sqlx::query_scalar("SELECT labels FROM motions WHERE id = ?")
+            sqlx::query_scalar("SELECT labels FROM motions WHERE id = $1")
                 .bind(id)
                 .fetch_optional(&mut *tx)
                 .await
@@ -318,13 +510,13 @@ impl Store {
             return Ok(Some(merged));
         }
         merged.extend(labels.clone());
-        sqlx::query("UPDATE motions SET labels = ? WHERE id = ?")
+        sqlx::query("UPDATE motions SET labels = $1 WHERE id = $2")
             .bind(serde_json::to_string(&merged).unwrap_or_else(|_| "{}".into()))
             .bind(id)
             .execute(&mut *tx)
             .await
             .map_err(|e| self.db(e))?;
-        sqlx::query("DELETE FROM motion_labels WHERE motion_id = ?")
+        sqlx::query("DELETE FROM motion_labels WHERE motion_id = $1")
             .bind(id)
             .execute(&mut *tx)
             .await
@@ -340,7 +532,7 @@ impl Store {
     /// Remove a motion and everything derived from it.
     pub async fn delete_motion(&self, id: i64) -> Result<bool> {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
-        let n = sqlx::query("DELETE FROM motions WHERE id = ?")
+        let n = sqlx::query("DELETE FROM motions WHERE id = $1")
             .bind(id)
             .execute(&mut *tx)
             .await
@@ -354,7 +546,7 @@ impl Store {
         Ok(true)
     }
 
-    fn row_to_motion(&self, r: &sqlx::sqlite::SqliteRow) -> Result<MotionRow> {
+    fn row_to_motion(&self, r: &AnyRow) -> Result<MotionRow> {
         let labels: String = r.try_get("labels").map_err(|e| self.db(e))?;
         Ok(MotionRow {
             id: r.try_get("id").map_err(|e| self.db(e))?,
@@ -402,7 +594,7 @@ impl Store {
     }
 
     pub async fn motion(&self, id: i64) -> Result<Option<MotionRow>> {
-        let row = sqlx::query("SELECT * FROM motions WHERE id = ?")
+        let row = sqlx::query("SELECT * FROM motions WHERE id = $1")
             .bind(id)
             .fetch_optional(&self.pool)
             .await
@@ -412,7 +604,7 @@ impl Store {
 
     /// The stored source file of a motion (name, bytes), if kept.
     pub async fn motion_file(&self, id: i64) -> Result<Option<(String, Vec<u8>)>> {
-        let row = sqlx::query("SELECT name, bytes FROM motion_files WHERE motion_id = ?")
+        let row = sqlx::query("SELECT name, bytes FROM motion_files WHERE motion_id = $1")
             .bind(id)
             .fetch_optional(&self.pool)
             .await
@@ -430,7 +622,7 @@ impl Store {
     pub async fn motions_with_labels(&self, filters: &[(String, String)]) -> Result<Vec<i64>> {
         let mut ids: Option<Vec<i64>> = None;
         for (k, v) in filters {
-            let found: Vec<i64> = sqlx::query_scalar("SELECT motion_id FROM motion_labels WHERE kind = ? AND value = ? ORDER BY motion_id")
+            let found: Vec<i64> = sqlx::query_scalar("SELECT motion_id FROM motion_labels WHERE kind = $1 AND value = $2 ORDER BY motion_id")
                 .bind(k)
                 .bind(v)
                 .fetch_all(&self.pool)
@@ -468,8 +660,57 @@ impl Store {
             .collect())
     }
 
+    /// One motion's windows: id → (motion, start), by id.
+    pub async fn motion_windows(&self, motion_id: i64) -> Result<Vec<(i64, WindowRef)>> {
+        let rows: Vec<(i64, i64)> =
+            sqlx::query_as("SELECT id, start_frame FROM windows WHERE motion_id = $1 ORDER BY id")
+                .bind(motion_id)
+                .fetch_all(&self.pool)
+                .await
+                .map_err(|e| self.db(e))?;
+        Ok(rows
+            .into_iter()
+            .map(|(id, start_frame)| {
+                (
+                    id,
+                    WindowRef {
+                        motion_id,
+                        start_frame,
+                    },
+                )
+            })
+            .collect())
+    }
+
+    /// One motion's embeddings of one kind: (window id, vector), by window.
+    pub async fn motion_embeddings(
+        &self,
+        motion_id: i64,
+        kind: Embedding,
+    ) -> Result<Vec<(i64, Vec<f32>)>> {
+        let rows: Vec<(i64, Vec<u8>)> = sqlx::query_as(
+            "SELECT e.window_id, e.vector FROM embeddings e JOIN windows w ON w.id = e.window_id
+             WHERE w.motion_id = $1 AND e.kind = $2 ORDER BY e.window_id",
+        )
+        .bind(motion_id)
+        .bind(kind.name())
+        .fetch_all(&self.pool)
+        .await
+        .map_err(|e| self.db(e))?;
+        rows.into_iter()
+            .map(|(id, b)| {
+                blob_to_f32s(&b).map(|v| (id, v)).ok_or_else(|| {
+                    self.corrupt(
+                        "embeddings.vector",
+                        format!("window {id}: blob is not f32s"),
+                    )
+                })
+            })
+            .collect()
+    }
+
     pub async fn count_embeddings(&self, kind: Embedding) -> Result<usize> {
-        let n: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM embeddings WHERE kind = ?")
+        let n: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM embeddings WHERE kind = $1")
             .bind(kind.name())
             .fetch_one(&self.pool)
             .await
@@ -480,7 +721,7 @@ impl Store {
     /// All embeddings of one kind: (window id, vector).
     pub async fn embeddings(&self, kind: Embedding) -> Result<Vec<(i64, Vec<f32>)>> {
         let rows: Vec<(i64, Vec<u8>)> = sqlx::query_as(
-            "SELECT window_id, vector FROM embeddings WHERE kind = ? ORDER BY window_id",
+            "SELECT window_id, vector FROM embeddings WHERE kind = $1 ORDER BY window_id",
         )
         .bind(kind.name())
         .fetch_all(&self.pool)
@@ -535,7 +776,7 @@ impl Store {
     ) -> Result<Option<(usize, Vec<[f32; CHANNELS]>)>> {
         let row_bytes = CHANNELS * 4;
         let row: Option<(i64, Vec<u8>)> = sqlx::query_as(
-            "SELECT frames, substr(data, ?, ?) FROM motion_channels WHERE motion_id = ?",
+            "SELECT frames, substr(data, CAST($1 AS INTEGER), CAST($2 AS INTEGER)) FROM motion_channels WHERE motion_id = $3",
         )
         .bind(start.saturating_mul(row_bytes).saturating_add(1) as i64)
         .bind(frames.saturating_mul(row_bytes) as i64)
@@ -566,7 +807,7 @@ impl Store {
     /// One window's stored embedding of one kind.
     pub async fn embedding(&self, window_id: i64, kind: Embedding) -> Result<Option<Vec<f32>>> {
         let row: Option<Vec<u8>> =
-            sqlx::query_scalar("SELECT vector FROM embeddings WHERE window_id = ? AND kind = ?")
+            sqlx::query_scalar("SELECT vector FROM embeddings WHERE window_id = $1 AND kind = $2")
                 .bind(window_id)
                 .bind(kind.name())
                 .fetch_optional(&self.pool)
@@ -594,7 +835,7 @@ impl Store {
         model_generation: i64,
     ) -> Result<()> {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
-        sqlx::query("DELETE FROM embeddings WHERE kind = ?")
+        sqlx::query("DELETE FROM embeddings WHERE kind = $1")
             .bind(kind.name())
             .execute(&mut *tx)
             .await
@@ -604,7 +845,7 @@ impl Store {
                 .await
                 .map_err(|e| self.db(e))?;
         }
-        sqlx::query("INSERT INTO models (name, generation, body) VALUES (?, ?, ?) ON CONFLICT(name) DO UPDATE SET generation = excluded.generation, body = excluded.body")
+        sqlx::query("INSERT INTO models (name, generation, body) VALUES ($1, $2, $3) ON CONFLICT(name) DO UPDATE SET generation = excluded.generation, body = excluded.body")
             .bind(model_name)
             .bind(model_generation)
             .bind(model_body)
@@ -627,7 +868,7 @@ impl Store {
     /// Create a collection; `false` when it exists already.
     pub async fn create_collection(&self, name: &str) -> Result<bool> {
         let r =
-            sqlx::query("INSERT INTO collections (name) VALUES (?) ON CONFLICT(name) DO NOTHING")
+            sqlx::query("INSERT INTO collections (name) VALUES ($1) ON CONFLICT(name) DO NOTHING")
                 .bind(name)
                 .execute(&self.pool)
                 .await
@@ -643,7 +884,7 @@ impl Store {
         target: &str,
         request_id: &str,
     ) -> Result<()> {
-        sqlx::query("INSERT INTO audit (actor, action, target, request_id) VALUES (?, ?, ?, ?)")
+        sqlx::query("INSERT INTO audit (actor, action, target, request_id) VALUES ($1, $2, $3, $4)")
             .bind(actor)
             .bind(action)
             .bind(target)
@@ -657,7 +898,7 @@ impl Store {
     /// The newest `limit` audit entries, newest first.
     pub async fn audit(&self, limit: i64) -> Result<Vec<AuditRow>> {
         sqlx::query_as(
-            "SELECT id, at, actor, action, target, request_id FROM audit ORDER BY id DESC LIMIT ?",
+            "SELECT id, at, actor, action, target, request_id FROM audit ORDER BY id DESC LIMIT $1",
         )
         .bind(limit)
         .fetch_all(&self.pool)
@@ -667,7 +908,7 @@ impl Store {
 
     /// A stored model: (the generation it was fitted at, its JSON).
     pub async fn model(&self, name: &str) -> Result<Option<(i64, String)>> {
-        sqlx::query_as("SELECT generation, body FROM models WHERE name = ?")
+        sqlx::query_as("SELECT generation, body FROM models WHERE name = $1")
             .bind(name)
             .fetch_optional(&self.pool)
             .await
@@ -696,12 +937,12 @@ impl Store {
 }
 
 async fn insert_labels(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
     motion_id: i64,
     labels: &Labels,
 ) -> std::result::Result<(), sqlx::Error> {
     for (k, v) in labels {
-        sqlx::query("INSERT INTO motion_labels (motion_id, kind, value) VALUES (?, ?, ?)")
+        sqlx::query("INSERT INTO motion_labels (motion_id, kind, value) VALUES ($1, $2, $3)")
             .bind(motion_id)
             .bind(k)
             .bind(v)
@@ -712,12 +953,12 @@ async fn insert_labels(
 }
 
 async fn insert_embedding(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
     window_id: i64,
     kind: Embedding,
     v: &[f32],
 ) -> std::result::Result<(), sqlx::Error> {
-    sqlx::query("INSERT INTO embeddings (window_id, kind, dim, vector) VALUES (?, ?, ?, ?)")
+    sqlx::query("INSERT INTO embeddings (window_id, kind, dim, vector) VALUES ($1, $2, $3, $4)")
         .bind(window_id)
         .bind(kind.name())
         .bind(v.len() as i64)
@@ -728,12 +969,43 @@ async fn insert_embedding(
 }
 
 async fn bump_generation(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
 ) -> std::result::Result<(), sqlx::Error> {
     sqlx::query(
-        "UPDATE meta SET value = CAST(CAST(value AS INTEGER) + 1 AS TEXT) WHERE key = 'generation'",
+        "UPDATE meta SET value = CAST(CAST(value AS BIGINT) + 1 AS TEXT) WHERE key = 'generation'",
     )
     .execute(&mut **tx)
     .await?;
     Ok(())
+}
+
+/// A database error as the store reports it: unreachable (connection
+/// refused or reset, a pool timeout, the server shutting down) is
+/// [`StoreError::Unavailable`], anything else [`StoreError::Db`].
+fn classify(label: &str, source: sqlx::Error) -> StoreError {
+    let unavailable = match &source {
+        sqlx::Error::Io(_)
+        | sqlx::Error::PoolTimedOut
+        | sqlx::Error::PoolClosed
+        | sqlx::Error::WorkerCrashed
+        | sqlx::Error::Tls(_) => true,
+        // 57P01 admin_shutdown, 57P02 crash_shutdown, 57P03 cannot_connect_now,
+        // 08xxx connection exceptions.
+        sqlx::Error::Database(e) => e
+            .code()
+            .is_some_and(|c| c.starts_with("57P") || c.starts_with("08")),
+        sqlx::Error::Protocol(m) => m.contains("closed") || m.contains("unexpected"),
+        _ => false,
+    };
+    if unavailable {
+        StoreError::Unavailable {
+            path: label.to_string(),
+            reason: source.to_string(),
+        }
+    } else {
+        StoreError::Db {
+            path: label.to_string(),
+            source,
+        }
+    }
 }

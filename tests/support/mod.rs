@@ -14,6 +14,8 @@ pub fn serve_config(dir: &Path) -> ServeConfig {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     ServeConfig {
         data_dir: dir.to_path_buf(),
+        store: None,
+        sync_ms: 500,
         bind: "127.0.0.1".into(),
         http_port: 0,
         grpc_port: 0,

@@ -8,7 +8,7 @@ use crate::index::AnnIndex;
 use crate::motion::{Labels, MotionError};
 use crate::service::ingest::{self, identity_hash, IngestOptions, Stored};
 use crate::service::query::QueryError;
-use crate::store::WindowRef;
+use crate::store::{StoreError, WindowRef};
 use serde::Serialize;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -67,7 +67,28 @@ impl Searcher {
             Ok(m) => m,
             Err(e) => return Ok(Err(e)),
         };
-        let (motion_id, window_ids) = self.store.insert_motion(&m).await?;
+        let (motion_id, window_ids) = match self.store.insert_motion(&m).await {
+            Ok(x) => x,
+            // Another replica stored the same content since the lookup
+            // above: answer with its id, as if it had been here first.
+            Err(StoreError::Duplicate { .. }) => {
+                let id = self
+                    .store
+                    .motion_by_hash(&m.content_hash)
+                    .await?
+                    .ok_or_else(|| QueryError::Index(name.into(), "duplicate vanished".into()))?;
+                let merged_labels = if opts.extra_labels.is_empty() {
+                    None
+                } else {
+                    self.store.merge_labels(id, &opts.extra_labels).await?
+                };
+                return Ok(Ok(IngestOutcome {
+                    stored: Stored::Existing { motion_id: id },
+                    merged_labels,
+                }));
+            }
+            Err(e) => return Err(e.into()),
+        };
         let row = self
             .store
             .motion(motion_id)
@@ -131,6 +152,14 @@ impl Searcher {
         if !self.store.delete_motion(id).await? {
             return Ok(false);
         }
+        self.forget(id);
+        self.wake.notify_one();
+        Ok(true)
+    }
+
+    /// Take a deleted motion out of the catalog; its points stay in the
+    /// indexes, hidden, until compaction (call with `writes` held).
+    fn forget(&self, id: i64) {
         let gone = {
             let mut c = self.catalog.write().expect("catalog lock");
             c.motions.remove(&id);
@@ -144,8 +173,107 @@ impl Searcher {
             entry.dead.fetch_add(gone, Ordering::AcqRel);
             entry.dirty.store(true, Ordering::Release);
         }
-        self.wake.notify_one();
+    }
+
+    /// Catch up with writes made by other processes on the same store
+    /// (replicas sharing one PostgreSQL, or `choreo ingest` on the same
+    /// SQLite file): their motions go into every built index, motions they
+    /// deleted are hidden, changed labels are taken, and a PCA basis they
+    /// refitted is loaded and its indexes rebuilt. When nothing changed it
+    /// costs one read of the store's generation. Returns whether it looked.
+    pub async fn sync(&self) -> Result<bool, QueryError> {
+        if self.store.generation().await? == self.synced.load(Ordering::Acquire) {
+            return Ok(false);
+        }
+        let _w = self.writes.lock().await;
+        let generation = self.store.generation().await?;
+        let rows = self.store.motions().await?;
+        let (added, removed) = {
+            let mut c = self.catalog.write().expect("catalog lock");
+            let live: std::collections::HashSet<i64> = rows.iter().map(|r| r.id).collect();
+            let removed: Vec<i64> = c.motions.keys().filter(|id| !live.contains(id)).copied().collect();
+            let mut added = Vec::new();
+            for row in rows {
+                match c.motions.get_mut(&row.id) {
+                    Some(known) => *known = row,
+                    None => added.push(row),
+                }
+            }
+            (added, removed)
+        };
+        for id in &removed {
+            self.forget(*id);
+        }
+        // A basis refitted elsewhere: load it, rebuild the PCA indexes.
+        let stored_fit = self.store.model("pca").await?;
+        let fit = stored_fit.as_ref().map_or(-1, |(g, _)| *g);
+        let refitted = fit != self.pca_fit.load(Ordering::Acquire);
+        if refitted {
+            let pca = stored_fit.and_then(|(_, body)| serde_json::from_str(&body).ok());
+            self.catalog.write().expect("catalog lock").pca = pca.map(Arc::new);
+            self.pca_fit.store(fit, Ordering::Release);
+        }
+        let built = self.built();
+        for row in added {
+            let id = row.id;
+            let windows = self.store.motion_windows(id).await?;
+            // Catalog first, then the indexes (as in `ingest`).
+            self.catalog
+                .write()
+                .expect("catalog lock")
+                .add_motion(row, &windows);
+            for ((e, _, _), entry) in &built {
+                if refitted && *e == Embedding::Pca {
+                    continue; // rebuilt whole below
+                }
+                let items: Vec<(usize, Vec<f32>)> = self
+                    .store
+                    .motion_embeddings(id, *e)
+                    .await?
+                    .into_iter()
+                    .map(|(w, v)| (w as usize, v))
+                    .collect();
+                let ix = entry.ix.clone();
+                tokio::task::spawn_blocking(move || ix.add_batch(&items))
+                    .await
+                    .map_err(|err| QueryError::Index(e.name().into(), err.to_string()))?;
+                entry.dirty.store(true, Ordering::Release);
+            }
+        }
+        if refitted {
+            for (key, _) in built.into_iter().filter(|(k, _)| k.0 == Embedding::Pca) {
+                let fresh = Arc::new(self.build(key, false).await?);
+                self.indexes.lock().expect("index map").insert(key, fresh);
+            }
+        }
+        self.synced.store(generation, Ordering::Release);
         Ok(true)
+    }
+
+    /// Run [`Searcher::sync`] every `every` (a replica's view of writes
+    /// made through the others). A store that cannot be reached is logged
+    /// once per outage and tried again; the task ends with the searcher.
+    pub fn spawn_sync(self: &Arc<Self>, every: std::time::Duration) {
+        let me = Arc::downgrade(self);
+        tokio::spawn(async move {
+            let mut failing = false;
+            loop {
+                tokio::time::sleep(every).await;
+                let Some(s) = me.upgrade() else { break };
+                match s.sync().await {
+                    Ok(_) if failing => {
+                        tracing::info!("store reachable again; replica in sync");
+                        failing = false;
+                    }
+                    Ok(_) => {}
+                    Err(err) if !failing => {
+                        tracing::warn!("replica sync failed (will retry): {err}");
+                        failing = true;
+                    }
+                    Err(_) => {}
+                }
+            }
+        });
     }
 
     /// The slow work writes leave behind, one job at a time while queries
@@ -158,6 +286,8 @@ impl Searcher {
         if ingest::pca_due(&self.store).await? {
             let fitted = ingest::refit_pca(&self.store).await?;
             self.catalog.write().expect("catalog lock").pca = fitted.map(|(p, _)| Arc::new(p));
+            let fit = self.store.model("pca").await?.map_or(-1, |(g, _)| g);
+            self.pca_fit.store(fit, Ordering::Release);
             for (key, _) in self
                 .built()
                 .into_iter()
