@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # A throwaway PostgreSQL from the machine's own packages, for the tests:
 #   scripts/pg_throwaway.sh start DIR PORT   # initdb (trust, loopback only) + start; prints the URL
-#   scripts/pg_throwaway.sh restart DIR      # what the outage test does mid-load
+#   scripts/pg_throwaway.sh restart DIR [PAUSE_S]  # down for PAUSE_S seconds (default 0), then up:
+#                                             # what the outage test does mid-load
 #   scripts/pg_throwaway.sh stop DIR
 # Runs initdb / pg_ctl as the `postgres` user when started as root.
 set -euo pipefail
@@ -26,7 +27,10 @@ start)
     echo "postgres://postgres@127.0.0.1:$port/choreo_test"
     ;;
 restart)
-    as_pg "'$bin/pg_ctl' -D '$dir/data' -w -m fast restart >/dev/null"
+    as_pg "'$bin/pg_ctl' -D '$dir/data' -w -m fast stop >/dev/null"
+    sleep "${3:-0}"
+    port=$(cat "$dir/port")
+    as_pg "'$bin/pg_ctl' -D '$dir/data' -l '$dir/server.log' -w -o \"-p $port -k '$dir' -c listen_addresses=127.0.0.1 -c fsync=on\" start >/dev/null"
     ;;
 stop)
     as_pg "'$bin/pg_ctl' -D '$dir/data' -w -m fast stop >/dev/null" || true

@@ -251,11 +251,7 @@ pub async fn list_motions(
     state: &AppState,
     who: &auth::Principal,
 ) -> Result<Vec<MotionRow>, ApiError> {
-    let mut rows = state
-        .store
-        .motions()
-        .await
-        .map_err(ApiError::from)?;
+    let mut rows = state.store.motions().await.map_err(ApiError::from)?;
     rows.retain(|r| who.sees(&r.collection));
     Ok(rows)
 }

@@ -22,13 +22,13 @@ use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::{Motion, MotionError};
 pub use crate::service::ingest::Stored;
 use crate::service::ingest::{load_motion, LoadError};
-use crate::store::StoreError;
 use crate::service::interpolate::{interpolate_motions, with_channels, InterpolateReport};
 use crate::service::keyframes::{
     reconstruct, Inbetween, KeyframeReport, KeyframeRequest, LearnedModel, Music, Select,
 };
 use crate::service::query::{QueryError, QueryHit, QueryRequest, QuerySource, Searcher};
 use crate::store::Store;
+use crate::store::StoreError;
 pub use archive::*;
 use std::sync::Arc;
 use tokio::sync::Semaphore;

@@ -291,13 +291,15 @@ pub async fn ingest_bytes(
             match store.insert_motion(&m).await {
                 Ok((motion_id, _)) => Ok(Ok(Stored::New { motion_id, windows })),
                 // Another replica stored it since the lookup.
-                Err(StoreError::Duplicate { .. }) => match store.motion_by_hash(&m.content_hash).await? {
-                    Some(id) => Ok(Ok(Stored::Existing { motion_id: id })),
-                    None => Err(StoreError::Duplicate {
-                        path: store.label().to_string(),
-                        hash: m.content_hash.clone(),
-                    }),
-                },
+                Err(StoreError::Duplicate { .. }) => {
+                    match store.motion_by_hash(&m.content_hash).await? {
+                        Some(id) => Ok(Ok(Stored::Existing { motion_id: id })),
+                        None => Err(StoreError::Duplicate {
+                            path: store.label().to_string(),
+                            hash: m.content_hash.clone(),
+                        }),
+                    }
+                }
                 Err(e) => Err(e),
             }
         }

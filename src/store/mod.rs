@@ -46,7 +46,11 @@ pub enum StoreError {
     Duplicate { path: String, hash: String },
     /// A store migrated by a newer choreo.
     #[error("{path}: the store was migrated by a newer choreo (it has migration {found}; this build knows migrations up to {known}): upgrade choreo, or point it at another store")]
-    TooNew { path: String, found: i64, known: i64 },
+    TooNew {
+        path: String,
+        found: i64,
+        known: i64,
+    },
 }
 
 /// Which engine a store runs on.
@@ -244,7 +248,12 @@ impl Store {
                         .map(|d| d.join(p))
                         .unwrap_or_else(|_| p.clone()),
                 };
-                let enc = abs.display().to_string().replace('%', "%25").replace('?', "%3F").replace('#', "%23");
+                let enc = abs
+                    .display()
+                    .to_string()
+                    .replace('%', "%25")
+                    .replace('?', "%3F")
+                    .replace('#', "%23");
                 (
                     format!("sqlite://{enc}?mode=rwc"),
                     Dialect::Sqlite,
@@ -299,12 +308,11 @@ impl Store {
         // Refuse a store migrated by a newer choreo, naming the versions.
         let known = migrator.iter().map(|m| m.version).max().unwrap_or(0);
         let mut conn = pool.acquire().await.map_err(&fail)?;
-        let newest: Option<i64> = sqlx::query_scalar(
-            "SELECT MAX(version) FROM _sqlx_migrations WHERE success",
-        )
-        .fetch_one(&mut *conn)
-        .await
-        .unwrap_or(None);
+        let newest: Option<i64> =
+            sqlx::query_scalar("SELECT MAX(version) FROM _sqlx_migrations WHERE success")
+                .fetch_one(&mut *conn)
+                .await
+                .unwrap_or(None);
         drop(conn);
         if let Some(found) = newest.filter(|v| *v > known) {
             return Err(StoreError::TooNew {
@@ -417,25 +425,25 @@ impl Store {
             Dialect::Sqlite => INSERT_MOTION_SQLITE,
             Dialect::Postgres => INSERT_MOTION_POSTGRES,
         };
-        let inserted: std::result::Result<i64, sqlx::Error> = sqlx::query_scalar(sql)
-        .bind(&m.source_path)
-        .bind(&m.content_hash)
-        .bind(&m.format)
-        .bind(m.fps)
-        .bind(m.frames as i64)
-        .bind(m.joints as i64)
-        .bind(&m.skeleton)
-        .bind(m.duration_s)
-        .bind(labels)
-        .bind(
-            (!m.read_options.is_default())
-                .then(|| serde_json::to_string(&m.read_options).expect("read options serialise")),
-        )
-        .bind(m.video.as_ref().map(|v| v.video.clone()))
-        .bind(m.video.as_ref().map(|v| v.video_offset_s))
-        .bind(&m.collection)
-        .fetch_one(&mut *tx)
-        .await;
+        let inserted: std::result::Result<i64, sqlx::Error> =
+            sqlx::query_scalar(sql)
+                .bind(&m.source_path)
+                .bind(&m.content_hash)
+                .bind(&m.format)
+                .bind(m.fps)
+                .bind(m.frames as i64)
+                .bind(m.joints as i64)
+                .bind(&m.skeleton)
+                .bind(m.duration_s)
+                .bind(labels)
+                .bind((!m.read_options.is_default()).then(|| {
+                    serde_json::to_string(&m.read_options).expect("read options serialise")
+                }))
+                .bind(m.video.as_ref().map(|v| v.video.clone()))
+                .bind(m.video.as_ref().map(|v| v.video_offset_s))
+                .bind(&m.collection)
+                .fetch_one(&mut *tx)
+                .await;
         let id = match inserted {
             Ok(id) => id,
             // Another replica stored the same content between the caller's
@@ -884,14 +892,16 @@ impl Store {
         target: &str,
         request_id: &str,
     ) -> Result<()> {
-        sqlx::query("INSERT INTO audit (actor, action, target, request_id) VALUES ($1, $2, $3, $4)")
-            .bind(actor)
-            .bind(action)
-            .bind(target)
-            .bind(request_id)
-            .execute(&self.pool)
-            .await
-            .map_err(|e| self.db(e))?;
+        sqlx::query(
+            "INSERT INTO audit (actor, action, target, request_id) VALUES ($1, $2, $3, $4)",
+        )
+        .bind(actor)
+        .bind(action)
+        .bind(target)
+        .bind(request_id)
+        .execute(&self.pool)
+        .await
+        .map_err(|e| self.db(e))?;
         Ok(())
     }
 

@@ -100,3 +100,4 @@ pub fn header<'a>(head: &'a str, name: &str) -> Option<&'a str> {
         .find_map(|l| l.strip_prefix(&format!("{name}: ")))
         .map(str::trim)
 }
+pub mod pg;

@@ -191,7 +191,12 @@ impl Searcher {
         let (added, removed) = {
             let mut c = self.catalog.write().expect("catalog lock");
             let live: std::collections::HashSet<i64> = rows.iter().map(|r| r.id).collect();
-            let removed: Vec<i64> = c.motions.keys().filter(|id| !live.contains(id)).copied().collect();
+            let removed: Vec<i64> = c
+                .motions
+                .keys()
+                .filter(|id| !live.contains(id))
+                .copied()
+                .collect();
             let mut added = Vec::new();
             for row in rows {
                 match c.motions.get_mut(&row.id) {
