@@ -17,6 +17,7 @@ bin=target/release/choreo
 [ -x "$bin" ] || { echo "build first: cargo build --release" >&2; exit 1; }
 command -v wrk >/dev/null || { echo "wrk not found (apt-get install wrk)" >&2; exit 1; }
 work=$(mktemp -d)
+chmod 755 "$work"  # the postgres user reaches its data folder inside
 cleanup() {
   for f in "$work"/*.pid; do [ -f "$f" ] && kill "$(cat "$f")" 2>/dev/null || true; done
   scripts/pg_throwaway.sh stop "$work/pg" 2>/dev/null || true
