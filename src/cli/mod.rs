@@ -1,10 +1,18 @@
-//! The `choreo` command line, split by area (the rest still lives in
-//! `main.rs` and moves here piece by piece).
+//! The `choreo` command line, split by area: `args` (the commands and
+//! shared options), `archive` (ingest, query), `motion` (inspect, convert,
+//! positions, interpolate, lowpass, keyframes), `bench`, `eval`, `dev`,
+//! `footage`, `token`; `main.rs` keeps only the allocator and `main`.
 
+pub mod archive;
+pub mod args;
+pub mod bench;
 pub mod bench_index;
 pub mod bench_model;
+pub mod dev;
+pub mod eval;
 pub mod eval_generate;
 pub mod footage;
+pub mod motion;
 pub mod token;
 
 use anyhow::{Context, Result};
@@ -35,4 +43,46 @@ pub fn rss_mb() -> (f64, f64) {
             .map_or(f64::NAN, |kb| kb / 1024.0)
     };
     (field("VmRSS:"), field("VmHWM:"))
+}
+
+/// Run one command line.
+pub fn run(cli: args::Cli) -> anyhow::Result<()> {
+    use args::Cmd;
+    match cli.cmd {
+        Cmd::Inspect(a) => motion::inspect_cmd(a),
+        Cmd::Convert(a) => motion::convert_cmd(a),
+        Cmd::Positions(a) => motion::positions_cmd(a),
+        Cmd::Dev { cmd } => dev::run(cmd),
+        Cmd::Ingest(a) => archive::ingest_cmd(a),
+        Cmd::Query(a) => archive::query_cmd(a),
+        Cmd::Interpolate(a) => motion::interpolate_run(a),
+        Cmd::Lowpass(a) => motion::lowpass_cmd(a),
+        Cmd::Bench { cmd } => bench::run(cmd),
+        Cmd::Eval { cmd } => eval::run(cmd),
+        Cmd::Footage { cmd } => footage::run(cmd),
+        Cmd::Token { cmd } => token::run(cmd),
+        Cmd::Serve(cfg) => {
+            choreo::server::init_logging(cfg.log_format);
+            runtime()?.block_on(choreo::server::serve(cfg))
+        }
+        Cmd::Keyframes(a) => motion::keyframes_run(a),
+    }
+}
+
+pub fn runtime() -> Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?)
+}
+
+pub fn parse_pairs(flag: &str, items: &[String]) -> Result<Vec<(String, String)>> {
+    items
+        .iter()
+        .map(|f| {
+            f.split_once('=')
+                .filter(|(a, b)| !a.is_empty() && !b.is_empty())
+                .map(|(a, b)| (a.to_string(), b.to_string()))
+                .with_context(|| format!("{flag}: '{f}' is not KIND=VALUE"))
+        })
+        .collect()
 }
