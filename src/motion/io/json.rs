@@ -7,6 +7,7 @@ use crate::motion::{Labels, Motion, MotionError, Skeleton};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct MotionJson {
     pub fps: f64,
     /// `smpl24` (the default) or `smpl13`.
