@@ -589,7 +589,7 @@ fn bearer<T>(req: &Request<T>) -> Option<&str> {
 fn summary_pb(r: crate::store::MotionRow) -> pb::MotionSummary {
     pb::MotionSummary {
         id: r.id,
-        source_path: r.source_path,
+        source_path: super::public_source(&r.source_path),
         format: r.format,
         fps: r.fps,
         frames: r.frames,

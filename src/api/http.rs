@@ -320,7 +320,7 @@ async fn keyframes(
 }
 
 fn summary(r: &crate::store::MotionRow) -> serde_json::Value {
-    let mut v = json!({"id": r.id, "source_path": r.source_path, "format": r.format, "fps": r.fps,
+    let mut v = json!({"id": r.id, "source_path": super::public_source(&r.source_path), "format": r.format, "fps": r.fps,
            "frames": r.frames, "joints": r.joints, "skeleton": r.skeleton,
            "duration_s": r.duration_s, "labels": r.labels, "collection": r.collection});
     if let Some(link) = &r.video {

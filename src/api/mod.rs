@@ -463,7 +463,21 @@ pub async fn query(
         .acquire_owned()
         .await
         .map_err(|_| ApiError::Busy("the query pool is closed".into()))?;
-    Ok(state.searcher.query(req).await?)
+    let mut hits = state.searcher.query(req).await?;
+    for h in &mut hits {
+        h.source_path = public_source(&h.source_path);
+    }
+    Ok(hits)
+}
+
+/// A motion's source as API clients see it: its file name, never the
+/// server's path to it (`../shared/data/aistpp/motions/x.pkl` → `x.pkl`).
+/// The command line, run where the files are, keeps the whole path.
+pub fn public_source(path: &str) -> String {
+    std::path::Path::new(path)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| path.to_string())
 }
 
 pub struct InterpolateParams {
