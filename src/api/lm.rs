@@ -234,17 +234,10 @@ pub async fn generate_stream(
     Ok(rx)
 }
 
-/// A live duet: the performer's prompt joints come in frame by frame, the
-/// model answers each with a full-body frame.
+/// A live duet ([`crate::lm::duet::Duet`]) holding a worker permit for
+/// its whole life.
 pub struct DuetSession {
-    session: MotionModel,
-    gen: MotionGenerator,
-    slots: Vec<bool>,
-    prev: Option<Motion>,
-    /// The lowest floor seen so far (heights are tokenized against it).
-    floor: Option<f64>,
-    dec: FrameDecoder,
-    pub frames: usize,
+    duet: crate::lm::duet::Duet,
     _permit: tokio::sync::OwnedSemaphorePermit,
 }
 
@@ -255,28 +248,14 @@ impl DuetSession {
         joints: &[String],
         sampling: Sampling,
     ) -> Result<DuetSession, ApiError> {
-        let session = model(state)?;
-        if joints.is_empty() {
-            return Err(ApiError::invalid(
-                "prompt_joints",
-                "a duet needs the joints the performer drives",
-            ));
-        }
-        let slots = prompt_slots(session.vocabulary(), joints)?;
-        let gen = session.generator(labels, &[], sampling)?;
+        let duet = crate::lm::duet::Duet::new(model(state)?, labels, joints, sampling)?;
         let permit = state
             .workers
             .clone()
             .try_acquire_owned()
             .map_err(|_| ApiError::Busy("every worker is busy; retry the duet later".into()))?;
         Ok(DuetSession {
-            session,
-            gen,
-            slots,
-            prev: None,
-            floor: None,
-            dec: FrameDecoder::new(),
-            frames: 0,
+            duet,
             _permit: permit,
         })
     }
@@ -285,52 +264,11 @@ impl DuetSession {
     /// rate), one full-body frame out.
     pub fn step(&mut self, frame: Motion) -> Result<StreamFrame, ApiError> {
         let t0 = Instant::now();
-        let vocab = self.session.vocabulary();
-        if frame.frames() != 1 {
-            return Err(ApiError::invalid(
-                "frame",
-                format!("{} frames; send one frame a message", frame.frames()),
-            ));
-        }
-        if (frame.fps - vocab.fps).abs() > 1e-6 {
-            return Err(ApiError::invalid(
-                "frame.fps",
-                format!(
-                    "{}; a duet runs at the model's {} fps",
-                    frame.fps, vocab.fps
-                ),
-            ));
-        }
-        // Velocities need the previous frame: encode the pair, keep the last.
-        let pair = match &self.prev {
-            Some(p) if p.skeleton.names == frame.skeleton.names => {
-                let mut rot = p.rotations.clone();
-                rot.extend_from_slice(&frame.rotations);
-                Motion::new(
-                    "duet",
-                    frame.fps,
-                    frame.skeleton.clone(),
-                    vec![p.trans[0], frame.trans[0]],
-                    rot,
-                    Labels::new(),
-                )?
-            }
-            _ => frame.clone(),
-        };
-        let (tokens, floor) = vocab.encode_motion_on_floor(&pair, self.floor)?;
-        self.floor = Some(floor);
-        let fl = vocab.frame_len();
-        let last = &tokens[tokens.len() - fl..];
-        let forced = forced_frames(last, &self.slots).pop().unwrap_or_default();
-        let out = self.gen.next_frame(&forced)?;
-        let (rotations, translation) = self.dec.decode(vocab, &out)?;
-        self.prev = Some(frame);
-        let index = self.frames;
-        self.frames += 1;
+        let f = self.duet.step(frame)?;
         Ok(StreamFrame {
-            index,
-            rotations,
-            translation,
+            index: f.index,
+            rotations: f.rotations,
+            translation: f.translation,
             latency_ms: t0.elapsed().as_secs_f64() * 1e3,
         })
     }

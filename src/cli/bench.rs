@@ -80,6 +80,13 @@ pub enum BenchCmd {
         runtime: choreo::lm::engine::Runtime,
         #[arg(long)]
         ort_lib: Option<PathBuf>,
+        /// Also time a duet: this motion file as the performer (resampled
+        /// to the model's frame rate, up to --frames frames), driving
+        /// --duet-joints; the answer latency per frame.
+        #[arg(long)]
+        duet: Option<PathBuf>,
+        #[arg(long, value_delimiter = ',', default_value = "Pelvis,Right_Wrist")]
+        duet_joints: Vec<String>,
         /// Print one JSON object on one line.
         #[arg(long)]
         json: bool,
@@ -148,10 +155,21 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             dump,
             runtime,
             ort_lib,
+            duet,
+            duet_joints,
             json,
         } => {
             let engine = choreo::lm::engine::Engine::new(runtime, ort_lib.as_deref())?;
-            super::bench_model::run(&model, &engine, repeats, frames, dump.as_deref(), json)
+            let duet = duet.as_deref().map(|f| (f, duet_joints.as_slice()));
+            super::bench_model::run(
+                &model,
+                &engine,
+                repeats,
+                frames,
+                dump.as_deref(),
+                duet,
+                json,
+            )
         }
         BenchCmd::Keyframes {
             motion,

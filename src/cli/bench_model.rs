@@ -15,6 +15,7 @@ pub fn run(
     repeats: usize,
     frames: usize,
     dump: Option<&Path>,
+    duet: Option<(&Path, &[String])>,
     json: bool,
 ) -> Result<()> {
     use choreo::lm::model::MotionModel;
@@ -102,7 +103,44 @@ pub fn run(
     // that is a local (slot) step; the flat model's figure is a frame over
     // its 43 tokens.
     let decode = local_p50.unwrap_or(q(0.5) / v.frame_len() as f64);
+    // A duet: a real motion as the performer, one frame in, one out.
+    let mut duet_json = serde_json::Value::Null;
+    if let Some((file, joints)) = duet {
+        let m = choreo::motion::io::read_path(file, &Default::default())?
+            .motion
+            .resample(v.fps)?;
+        let n = frames.min(m.frames());
+        let mut d = choreo::lm::duet::Duet::new(
+            model.clone(),
+            &Default::default(),
+            joints,
+            Sampling {
+                temperature: 1.0,
+                top_k: 0,
+                top_p: 0.95,
+                seed: 1,
+                guidance: 1.0,
+            },
+        )?;
+        let mut lat = Vec::with_capacity(n);
+        for f in 0..n {
+            let one = m.cut(f, f + 1)?;
+            let t = Instant::now();
+            d.step(one)?;
+            lat.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        lat.sort_by(f64::total_cmp);
+        duet_json = serde_json::json!({
+            "performer": file.display().to_string(),
+            "prompt_joints": joints,
+            "frames": n,
+            "answer_ms_p50": percentile(&lat, 0.5),
+            "answer_ms_p99": percentile(&lat, 0.99),
+            "answer_ms_max": percentile(&lat, 1.0),
+        });
+    }
     let out = serde_json::json!({
+        "duet": duet_json,
         "model": dir.display().to_string(),
         "kind": model.kind(),
         "runtime": engine.runtime().name(),
