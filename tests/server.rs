@@ -1229,42 +1229,27 @@ async fn unknown_routes_and_methods_answer_json_and_bearer_is_case_insensitive()
 /// `choreo serve` as a child process on free ports; returns it with its
 /// REST address (read from its first line on stderr; the rest is drained).
 fn spawn_server(dir: &std::path::Path) -> (std::process::Child, SocketAddr) {
-    use std::io::BufRead;
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_choreo"))
-        .args([
-            "serve",
-            "--http-port",
-            "0",
-            "--grpc-port",
-            "0",
-            "--workers",
-            "2",
-        ])
-        .arg("--data-dir")
-        .arg(dir)
-        .args([
-            "--model",
-            "/nonexistent-model",
-            "--token",
-            TOKEN,
-            "--public-read",
-        ])
-        .stderr(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
-    let addr = loop {
-        let line = lines
-            .next()
-            .expect("the server exited before listening")
-            .unwrap();
-        if let Some((_, rest)) = line.split_once("choreo: REST on http://") {
-            break rest.split(',').next().unwrap().parse().unwrap();
-        }
-    };
-    std::thread::spawn(move || for _ in lines {});
-    (child, addr)
+    support::spawn_choreo(
+        std::process::Command::new(env!("CARGO_BIN_EXE_choreo"))
+            .args([
+                "serve",
+                "--http-port",
+                "0",
+                "--grpc-port",
+                "0",
+                "--workers",
+                "2",
+            ])
+            .arg("--data-dir")
+            .arg(dir)
+            .args([
+                "--model",
+                "/nonexistent-model",
+                "--token",
+                TOKEN,
+                "--public-read",
+            ]),
+    )
 }
 
 /// kill -9 while ingests stream in over the API, then restart on the same

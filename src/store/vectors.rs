@@ -63,16 +63,7 @@ impl Store {
         .fetch_all(&self.pool)
         .await
         .map_err(|e| self.db(e))?;
-        rows.into_iter()
-            .map(|(id, b)| {
-                blob_to_f32s(&b).map(|v| (id, v)).ok_or_else(|| {
-                    self.corrupt(
-                        "embeddings.vector",
-                        format!("window {id}: blob is not f32s"),
-                    )
-                })
-            })
-            .collect()
+        self.decode_vectors(rows)
     }
 
     pub async fn count_embeddings(&self, kind: Embedding) -> Result<usize> {
@@ -93,6 +84,11 @@ impl Store {
         .fetch_all(&self.pool)
         .await
         .map_err(|e| self.db(e))?;
+        self.decode_vectors(rows)
+    }
+
+    /// (window id, blob) rows as (window id, f32 vector).
+    fn decode_vectors(&self, rows: Vec<(i64, Vec<u8>)>) -> Result<Vec<(i64, Vec<f32>)>> {
         rows.into_iter()
             .map(|(id, b)| {
                 blob_to_f32s(&b).map(|v| (id, v)).ok_or_else(|| {

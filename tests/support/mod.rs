@@ -101,3 +101,28 @@ pub fn header<'a>(head: &'a str, name: &str) -> Option<&'a str> {
         .map(str::trim)
 }
 pub mod pg;
+
+/// `choreo serve` as a child process with these arguments (free ports
+/// are the caller's: pass `--http-port 0 --grpc-port 0`); returns it with
+/// its REST address, read from its log line on stderr (the rest of its
+/// stderr is drained in the background).
+pub fn spawn_choreo(cmd: &mut std::process::Command) -> (std::process::Child, SocketAddr) {
+    use std::io::BufRead;
+    let mut child = cmd
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+    let addr = loop {
+        let line = lines
+            .next()
+            .expect("the server exited before listening")
+            .unwrap();
+        if let Some((_, rest)) = line.split_once("choreo: REST on http://") {
+            break rest.split(',').next().unwrap().parse().unwrap();
+        }
+    };
+    std::thread::spawn(move || for _ in lines {});
+    (child, addr)
+}

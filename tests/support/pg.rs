@@ -10,7 +10,7 @@ use base64::Engine;
 use serde_json::{json, Value};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command};
 
 pub const TOKEN: &str = "replica-secret";
 
@@ -54,36 +54,21 @@ pub async fn fresh_db(admin: &str, tag: &str) -> String {
 /// `choreo serve --store URL` on free ports (no model: these tests need
 /// the archive and search only); its REST address from its first line.
 pub fn spawn_replica(url: &str, dir: &Path) -> (Child, SocketAddr) {
-    use std::io::BufRead;
-    let mut child = Command::new(env!("CARGO_BIN_EXE_choreo"))
-        .args(["serve", "--http-port", "0", "--grpc-port", "0"])
-        .args(["--store", url])
-        .arg("--data-dir")
-        .arg(dir)
-        .args([
-            "--model",
-            "/nonexistent-model",
-            "--token",
-            TOKEN,
-            "--public-read",
-        ])
-        .args(["--sync-ms", "200"])
-        .stderr(Stdio::piped())
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
-    let addr = loop {
-        let line = lines
-            .next()
-            .expect("the replica exited before listening")
-            .unwrap();
-        if let Some((_, rest)) = line.split_once("choreo: REST on http://") {
-            break rest.split(',').next().unwrap().parse().unwrap();
-        }
-    };
-    std::thread::spawn(move || for _ in lines {});
-    (child, addr)
+    super::spawn_choreo(
+        Command::new(env!("CARGO_BIN_EXE_choreo"))
+            .args(["serve", "--http-port", "0", "--grpc-port", "0"])
+            .args(["--store", url])
+            .arg("--data-dir")
+            .arg(dir)
+            .args([
+                "--model",
+                "/nonexistent-model",
+                "--token",
+                TOKEN,
+                "--public-read",
+            ])
+            .args(["--sync-ms", "200"]),
+    )
 }
 
 /// Real AIST++-VRM dances (sorted by name), as ingest bodies.
