@@ -144,7 +144,15 @@ fn exported_graphs_match_the_trainer() {
     let values = fr::value_frames(&c.val[0].tokens, v.frame_len());
     let mut labels = Labels::new();
     labels.insert("style".into(), "sad".into());
-    let (worst, scale) = frame_export::parity(&net, &v, dir.path(), &values, &labels).unwrap();
+    let (worst, scale) = frame_export::parity(
+        &net,
+        &v,
+        dir.path(),
+        &values,
+        &labels,
+        &choreo::lm::engine::Engine::tract(),
+    )
+    .unwrap();
     eprintln!("parity {worst:.2e} (logits up to {scale:.1})");
     assert!(scale > 0.1);
     assert!(worst < 1e-4, "{worst}");

@@ -32,6 +32,13 @@ static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
+    /// The runtime an exported frame model is loaded in for its parity
+    /// check against the trainer: tract, or ort (onnxruntime; a build
+    /// with the `onnxruntime` feature, and --ort-lib or ORT_DYLIB_PATH).
+    #[arg(long, global = true, default_value = "tract")]
+    runtime: choreo::lm::engine::Runtime,
+    #[arg(long, global = true)]
+    ort_lib: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -331,10 +338,11 @@ fn main() {
 }
 
 fn run(cli: Cli) -> Result<()> {
+    let engine = choreo::lm::engine::Engine::new(cli.runtime, cli.ort_lib.as_deref())?;
     match cli.cmd {
         Cmd::Survey { data, json } => survey(&data, json),
         Cmd::Train(a) => train(*a),
-        Cmd::Frame(a) => frame(*a),
+        Cmd::Frame(a) => frame(*a, &engine),
         Cmd::EvalFrame {
             checkpoint,
             data,
@@ -345,7 +353,7 @@ fn run(cli: Cli) -> Result<()> {
             let (vocab, corpus) =
                 load_corpus(&data, Some(&st.vocabulary), &[], false, st.vocabulary.fps)?;
             if let Some(dir) = export {
-                export_frame(&net, &vocab, &corpus, &st, &dir)?;
+                export_frame(&net, &vocab, &corpus, &st, &dir, &engine)?;
             }
             print_frame_table(&net, &vocab, &corpus, &st.metrics)
         }
@@ -358,6 +366,9 @@ fn run(cli: Cli) -> Result<()> {
                 out.display()
             );
             Ok(())
+        }
+        Cmd::Parity { .. } if engine.runtime() != choreo::lm::engine::Runtime::Tract => {
+            bail!("--runtime {}: the flat GPT's parity check runs on tract only (its graph has dynamic shapes; the frame model's export checks on either runtime)", engine.runtime().name())
         }
         Cmd::Parity { checkpoint } => {
             let dir = tempdir_in(&checkpoint)?;
@@ -451,7 +462,7 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
-fn frame(a: FrameArgs) -> Result<()> {
+fn frame(a: FrameArgs, engine: &choreo::lm::engine::Engine) -> Result<()> {
     let mut kinds = a.cond.clone();
     for k in &a.classify {
         if !kinds.contains(k) {
@@ -522,7 +533,7 @@ fn frame(a: FrameArgs) -> Result<()> {
         let mut st = tr::frame::FrameState::fresh(cfg, &vocab, &run.settings, &corpus);
         st.metrics
             .insert("parameters".to_string(), net.params.count() as f64);
-        export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"))?;
+        export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"), engine)?;
         eprintln!(
             "untrained model, {} parameters, exported to {}",
             net.params.count(),
@@ -532,7 +543,7 @@ fn frame(a: FrameArgs) -> Result<()> {
     }
     let st = tr::frame::run(&run, &vocab, &corpus)?;
     let net = tr::frame::load(&a.out, &tr::device())?.1;
-    export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"))?;
+    export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"), engine)?;
     print_frame_table(&net, &vocab, &corpus, &st.metrics)
 }
 
@@ -544,6 +555,7 @@ fn export_frame(
     corpus: &Corpus,
     st: &tr::frame::FrameState,
     dir: &Path,
+    engine: &choreo::lm::engine::Engine,
 ) -> Result<()> {
     let training = serde_json::json!({
         "steps": st.step,
@@ -570,13 +582,14 @@ fn export_frame(
         .into_iter()
         .filter(|(k, _)| net.cfg.cond_kinds.contains(k))
         .collect();
-    let (worst, scale) = tr::frame_export::parity(net, vocab, dir, &values, &labels)?;
+    let (worst, scale) = tr::frame_export::parity(net, vocab, dir, &values, &labels, engine)?;
     eprintln!(
-        "exported {} + {} to {}; parity on {}: max |tract − trainer| = {worst:.2e} (logits up to {scale:.1})",
+        "exported {} + {} to {}; parity on {}: max |{} − trainer| = {worst:.2e} (logits up to {scale:.1})",
         m.global_onnx,
         m.local_onnx,
         dir.display(),
-        seq.name
+        seq.name,
+        engine.runtime().name()
     );
     Ok(())
 }

@@ -276,6 +276,7 @@ pub fn parity(
     dir: &Path,
     values: &[u32],
     labels: &crate::motion::Labels,
+    engine: &crate::lm::engine::Engine,
 ) -> anyhow::Result<(f32, f32)> {
     use super::frame::{batch, example};
     let c = &net.cfg;
@@ -289,7 +290,7 @@ pub fn parity(
     let (rel, abs) = net.local(&ctx, &b.inp, &b.vel, &b.prev)?;
     let rel = rel.flatten_all()?.to_vec1::<f32>()?;
     let abs = abs.flatten_all()?.to_vec1::<f32>()?;
-    let session = crate::lm::frame_runtime::FrameSession::load(dir)?;
+    let session = crate::lm::frame_runtime::FrameSession::load_with(dir, engine)?;
     let cond = session.cond(labels)?;
     let frames: Vec<Vec<u32>> = values[..n * c.slots]
         .chunks_exact(c.slots)
