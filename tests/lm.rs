@@ -132,7 +132,14 @@ fn exported_graph_matches_the_trainer_whole_and_incremental() {
     ] {
         let model = trained(config(&v, pos, obj), &v);
         let dir = export_to_temp(&model, &v);
-        let r = parity::check(&model, &v, dir.path(), 11).unwrap();
+        let r = parity::check(
+            &model,
+            &v,
+            dir.path(),
+            11,
+            &choreo::lm::engine::Engine::tract(),
+        )
+        .unwrap();
         eprintln!("{pos:?} {obj:?}: {r}");
         assert!(r.whole < 1e-4, "{r}");
         assert!(r.classes < 1e-4, "{r}");

@@ -201,3 +201,51 @@ fn tract_and_ort_agree_on_the_bundled_inbetweener() {
     assert!(scale > 1e-4);
     assert!(worst < 1e-4, "{worst}");
 }
+
+/// The thesis's flat GPT (the bundled `models/flat`, dynamic shapes) gives
+/// the same logits on tract and on onnxruntime: a whole window in one step,
+/// then 60 tokens at once and 30 one by one with the past cached.
+#[test]
+fn tract_and_ort_agree_on_the_flat_model() {
+    use choreo::lm::runtime::{Kv, LmSession};
+    let Some(ort) = ort_engine() else { return };
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/flat");
+    let t = LmSession::load_with(&dir, &Engine::tract()).unwrap();
+    let o = LmSession::load_with(&dir, &ort).unwrap();
+    let cfg = t.config().clone();
+    let (toks, pos) = choreo::lm::bench_window(&cfg, &t.manifest.vocabulary);
+    let worst = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0f32, f32::max)
+    };
+    let (wa, _) = t.step(&toks, &pos, Kv::empty(&cfg)).unwrap();
+    let (wb, _) = o.step(&toks, &pos, Kv::empty(&cfg)).unwrap();
+    let whole = worst(&wa.logits, &wb.logits);
+    // Incremental: the first 60 tokens at once, then one by one.
+    let (mut kt, mut ko) = (Kv::empty(&cfg), Kv::empty(&cfg));
+    let mut step_worst = 0f32;
+    let mut scale = 0f32;
+    for (i, j) in std::iter::once((0, 60)).chain((60..90).map(|i| (i, i + 1))) {
+        let (a, k2) = t.step(&toks[i..j], &pos[i..j], kt).unwrap();
+        let (b, o2) = o.step(&toks[i..j], &pos[i..j], ko).unwrap();
+        step_worst = step_worst.max(worst(&a.logits, &b.logits));
+        scale = scale.max(a.logits.iter().fold(0f32, |m, x| m.max(x.abs())));
+        for (x, y) in a
+            .class_logits
+            .iter()
+            .flatten()
+            .zip(b.class_logits.iter().flatten())
+        {
+            assert!((x - y).abs() < 1e-3, "{x} vs {y}");
+        }
+        (kt, ko) = (k2, o2);
+    }
+    eprintln!(
+        "flat model, tract vs ort: whole window ({} tokens) max |diff| {whole:.2e}; incremental {step_worst:.2e} (logits up to {scale:.1})",
+        toks.len()
+    );
+    assert!(scale > 0.1);
+    assert!(whole < 1e-3 && step_worst < 1e-3, "{whole} {step_worst}");
+}

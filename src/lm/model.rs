@@ -4,7 +4,7 @@
 //! decoder a frame). Generation, streaming, duet and classification go
 //! through it, so callers never ask which kind they hold.
 
-use super::engine::{Engine, Runtime};
+use super::engine::Engine;
 use super::frame::FRAME_KIND;
 use super::frame_runtime::{FrameGenerator, FrameSession};
 use super::generate::{
@@ -33,16 +33,13 @@ impl MotionModel {
         MotionModel::load_with(path, &Engine::tract())
     }
 
-    /// Loads it on `engine`'s runtime. The flat GPT runs on tract only.
+    /// Loads it on `engine`'s runtime.
     pub fn load_with(path: &Path, engine: &Engine) -> Result<MotionModel, LmError> {
         let (_, name, v): (_, String, serde_json::Value) = read_manifest(path)?;
         match v.get("kind").and_then(|k| k.as_str()) {
-            Some("motion-lm") if engine.runtime() != Runtime::Tract => Err(LmError::invalid(
-                name,
-                "kind",
-                "the flat model (motion-lm) runs on tract only: use --runtime tract, or a motion-frame-lm model with --runtime ort".to_string(),
-            )),
-            Some("motion-lm") => Ok(MotionModel::Flat(Arc::new(LmSession::load(path)?))),
+            Some("motion-lm") => Ok(MotionModel::Flat(Arc::new(LmSession::load_with(
+                path, engine,
+            )?))),
             Some(k) if k == FRAME_KIND => Ok(MotionModel::Frame(Arc::new(
                 FrameSession::load_with(path, engine)?,
             ))),

@@ -1,7 +1,9 @@
-//! The exported model in tract: one forward step over new tokens, with the
-//! past keys and values as inputs and the extended ones as outputs, so a
-//! stream costs one step per token rather than one window. Every tract type
-//! stays inside this module.
+//! The thesis's flat GPT at run time: one forward step over new tokens,
+//! with the past keys and values as inputs and the extended ones as
+//! outputs, so a stream costs one step per token rather than one window.
+//! Its graph has dynamic shapes (the past grows), so tract gets a plan with
+//! symbolic dimensions here, and onnxruntime runs it through the engine's
+//! graph trait (`--runtime ort`), whose states take any input shape.
 
 use super::{LmError, Manifest, ModelConfig, Objective, Pos, PosScheme};
 use std::path::Path;
@@ -45,7 +47,13 @@ pub struct StepOut {
 /// A loaded, optimised model: immutable and shared between requests.
 pub struct LmSession {
     pub manifest: Manifest,
-    plan: Plan,
+    backend: Backend,
+}
+
+/// Which runtime runs the graph.
+enum Backend {
+    Tract(Plan),
+    Engine(Arc<dyn super::engine::Graph>),
 }
 
 /// The graph's input names for a configuration (the trainer's exporter
@@ -85,11 +93,42 @@ impl LmSession {
     /// against the ONNX file and the graph's inputs and outputs against
     /// the manifest.
     pub fn load(path: &Path) -> Result<LmSession, LmError> {
+        LmSession::load_with(path, &super::engine::Engine::tract())
+    }
+
+    /// Loads it on `engine`'s runtime (tract: a plan with symbolic
+    /// dimensions; onnxruntime: the engine's graph, dynamic shapes as is).
+    pub fn load_with(path: &Path, engine: &super::engine::Engine) -> Result<LmSession, LmError> {
         let (manifest, onnx_path, bytes) = Manifest::load(path)?;
-        let plan = Self::plan(&manifest, &bytes).map_err(|e| {
-            LmError::invalid(onnx_path.display().to_string(), "graph", e.to_string())
-        })?;
-        Ok(LmSession { manifest, plan })
+        let file = onnx_path.display().to_string();
+        let backend = match engine.runtime() {
+            super::engine::Runtime::Tract => Backend::Tract(
+                Self::plan(&manifest, &bytes)
+                    .map_err(|e| LmError::invalid(file.clone(), "graph", e.to_string()))?,
+            ),
+            _ => {
+                let cfg = &manifest.config;
+                let inputs = input_names(cfg);
+                if manifest.inputs != inputs || manifest.outputs != output_names(cfg) {
+                    return Err(LmError::invalid(
+                        file,
+                        "graph",
+                        format!(
+                            "the manifest's inputs {:?} are not the {inputs:?} that config implies",
+                            manifest.inputs
+                        ),
+                    ));
+                }
+                let spec = super::engine::GraphSpec {
+                    inputs: &inputs,
+                    outputs: output_names(cfg).len(),
+                    file: &file,
+                    f32_shapes: &[],
+                };
+                Backend::Engine(engine.load(&bytes, &spec)?)
+            }
+        };
+        Ok(LmSession { manifest, backend })
     }
 
     fn plan(manifest: &Manifest, bytes: &[u8]) -> TractResult<Plan> {
@@ -175,49 +214,101 @@ impl LmSession {
         }
         let p = past.len;
         let s = p + n;
-        let mut inputs: TVec<TValue> = TVec::new();
         let ids: Vec<i64> = tokens.iter().map(|&t| t as i64).collect();
-        inputs.push(Tensor::from_shape(&[1, n], &ids).map_err(rt)?.into_tvalue());
         let a: Vec<i64> = pos.iter().map(|q| q.a).collect();
-        inputs.push(Tensor::from_shape(&[1, n], &a).map_err(rt)?.into_tvalue());
-        if cfg.positions == PosScheme::FrameSlot {
-            let b: Vec<i64> = pos.iter().map(|q| q.b).collect();
-            inputs.push(Tensor::from_shape(&[1, n], &b).map_err(rt)?.into_tvalue());
-        }
+        let b: Vec<i64> = pos.iter().map(|q| q.b).collect();
         let bias = attention_bias(cfg.objective, p, n);
-        inputs.push(
-            Tensor::from_shape(&[n, s], &bias)
-                .map_err(rt)?
-                .into_tvalue(),
-        );
-        for (k, v) in past.layers {
-            inputs.push(k.into_tvalue());
-            inputs.push(v.into_tvalue());
-        }
-        let mut out = self.plan.run(inputs).map_err(rt)?;
         let nk = cfg.classes.len();
-        let mut layers = Vec::with_capacity(cfg.n_layers);
-        let rest: Vec<TValue> = out.drain(1 + nk..).collect();
-        let mut it = rest.into_iter();
-        while let (Some(k), Some(v)) = (it.next(), it.next()) {
-            layers.push((k.into_tensor(), v.into_tensor()));
+        match &self.backend {
+            Backend::Tract(plan) => {
+                let mut inputs: TVec<TValue> = TVec::new();
+                inputs.push(Tensor::from_shape(&[1, n], &ids).map_err(rt)?.into_tvalue());
+                inputs.push(Tensor::from_shape(&[1, n], &a).map_err(rt)?.into_tvalue());
+                if cfg.positions == PosScheme::FrameSlot {
+                    inputs.push(Tensor::from_shape(&[1, n], &b).map_err(rt)?.into_tvalue());
+                }
+                inputs.push(
+                    Tensor::from_shape(&[n, s], &bias)
+                        .map_err(rt)?
+                        .into_tvalue(),
+                );
+                for (k, v) in past.layers {
+                    inputs.push(k.into_tvalue());
+                    inputs.push(v.into_tvalue());
+                }
+                let mut out = plan.run(inputs).map_err(rt)?;
+                let mut layers = Vec::with_capacity(cfg.n_layers);
+                let rest: Vec<TValue> = out.drain(1 + nk..).collect();
+                let mut it = rest.into_iter();
+                while let (Some(k), Some(v)) = (it.next(), it.next()) {
+                    layers.push((k.into_tensor(), v.into_tensor()));
+                }
+                let flat = |t: &TValue| -> Result<Vec<f32>, LmError> {
+                    Ok(t.to_plain_array_view::<f32>()
+                        .map_err(rt)?
+                        .iter()
+                        .copied()
+                        .collect())
+                };
+                let logits = flat(&out[0])?;
+                let class_logits = out[1..1 + nk].iter().map(flat).collect::<Result<_, _>>()?;
+                Ok((
+                    StepOut {
+                        logits,
+                        class_logits,
+                    },
+                    Kv { layers, len: s },
+                ))
+            }
+            Backend::Engine(graph) => {
+                use super::engine::{In, Outputs};
+                let row = [1, n];
+                let bias_shape = [n, s];
+                let kv_shape = [1, cfg.n_heads, p, cfg.d_head()];
+                let past_data = past
+                    .layers
+                    .iter()
+                    .map(|(k, v)| {
+                        Ok((
+                            k.try_as_plain_ram()
+                                .map_err(rt)?
+                                .as_slice::<f32>()
+                                .map_err(rt)?,
+                            v.try_as_plain_ram()
+                                .map_err(rt)?
+                                .as_slice::<f32>()
+                                .map_err(rt)?,
+                        ))
+                    })
+                    .collect::<Result<Vec<_>, LmError>>()?;
+                let mut inputs = vec![In::I64(&row, &ids), In::I64(&row, &a)];
+                if cfg.positions == PosScheme::FrameSlot {
+                    inputs.push(In::I64(&row, &b));
+                }
+                inputs.push(In::F32(&bias_shape, &bias));
+                for (k, v) in &past_data {
+                    inputs.push(In::F32(&kv_shape, k));
+                    inputs.push(In::F32(&kv_shape, v));
+                }
+                let mut out = Outputs::default();
+                graph.spawn()?.run(&inputs, None, &mut out)?;
+                let tensor = |i: usize| -> Result<Tensor, LmError> {
+                    let (shape, data) = &out.0[i];
+                    Tensor::from_shape(shape, data).map_err(rt)
+                };
+                let mut layers = Vec::with_capacity(cfg.n_layers);
+                for l in 0..cfg.n_layers {
+                    layers.push((tensor(1 + nk + 2 * l)?, tensor(2 + nk + 2 * l)?));
+                }
+                Ok((
+                    StepOut {
+                        logits: out.data(0).to_vec(),
+                        class_logits: (1..1 + nk).map(|i| out.data(i).to_vec()).collect(),
+                    },
+                    Kv { layers, len: s },
+                ))
+            }
         }
-        let flat = |t: &TValue| -> Result<Vec<f32>, LmError> {
-            Ok(t.to_plain_array_view::<f32>()
-                .map_err(rt)?
-                .iter()
-                .copied()
-                .collect())
-        };
-        let logits = flat(&out[0])?;
-        let class_logits = out[1..1 + nk].iter().map(flat).collect::<Result<_, _>>()?;
-        Ok((
-            StepOut {
-                logits,
-                class_logits,
-            },
-            Kv { layers, len: s },
-        ))
     }
 }
 

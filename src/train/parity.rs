@@ -1,4 +1,4 @@
-//! Parity: the exported graph in tract against the trainer's own forward
+//! Parity: the exported graph in its runtime (tract or onnxruntime) against the trainer's own forward
 //! pass, on one sequence, whole and token by token (incremental decoding).
 
 use super::model::Gpt;
@@ -26,7 +26,7 @@ impl std::fmt::Display for ParityReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "parity over {} tokens: max |tract − trainer| = {:.2e} whole, {:.2e} incremental, {:.2e} class logits (logits up to {:.1})",
+            "parity over {} tokens: max |runtime − trainer| = {:.2e} whole, {:.2e} incremental, {:.2e} class logits (logits up to {:.1})",
             self.tokens, self.whole, self.incremental, self.classes, self.scale
         )
     }
@@ -71,6 +71,7 @@ pub fn check(
     vocab: &Vocabulary,
     export_dir: &Path,
     seed: u64,
+    engine: &crate::lm::engine::Engine,
 ) -> Result<ParityReport> {
     let cfg = &model.cfg;
     let (toks, pl, nf, nc) = sample_sequence(model, vocab, seed);
@@ -103,7 +104,7 @@ pub fn check(
         .map(|c| c.flatten_all().and_then(|x| x.to_vec1()))
         .collect::<candle_core::Result<_>>()?;
 
-    let session = LmSession::load(export_dir)?;
+    let session = LmSession::load_with(export_dir, engine)?;
     let (whole, _) = session.step(&toks, &pos, Kv::empty(cfg))?;
     let diff = |a: &[f32], b: &[f32]| {
         a.iter()
