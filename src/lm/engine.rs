@@ -3,10 +3,11 @@
 //! generator or request and reused from step to step. Two runtimes
 //! implement it: tract (always built) and onnxruntime through `ort`
 //! (cargo feature `onnxruntime`, loaded at run time from the library the
-//! `onnxruntime` pip wheel ships). The frame model and the learned
-//! in-betweener run through it (the flat GPT, with dynamic shapes and its
-//! past re-fed each step, keeps its own tract session in `runtime.rs`); no
-//! other module of theirs names a tract or ort type.
+//! `onnxruntime` pip wheel ships). The frame model, the learned
+//! in-betweener and, on onnxruntime, the flat GPT run through it (the flat
+//! GPT's graph has dynamic shapes: a state takes whatever shapes a step
+//! brings; on tract it keeps a plan with symbolic dimensions in
+//! `runtime.rs`).
 //!
 //! Key/value caches of fixed capacity ([`Cache`]) live beside the states:
 //! a step passes them by reference (no copy in either runtime) and writes
