@@ -21,11 +21,13 @@ WORKDIR /src
 COPY Cargo.toml Cargo.lock build.rs ./
 COPY proto proto
 COPY migrations migrations
-RUN mkdir -p src/bin && echo 'fn main() {}' > src/main.rs && touch src/lib.rs \
-    && echo 'fn main() {}' > src/bin/choreo-train.rs \
+RUN mkdir -p src/bin/choreo-train && echo 'fn main() {}' > src/main.rs && touch src/lib.rs \
+    && echo 'fn main() {}' > src/bin/choreo-train/main.rs \
     && cargo build --release --features onnxruntime --bin choreo || true
 COPY src src
 COPY openapi.json openapi.json
+# The web studio's built assets, embedded by src/api/studio.rs.
+COPY web/dist web/dist
 RUN touch src/main.rs src/lib.rs && cargo build --release --locked --features onnxruntime --bin choreo \
     && strip target/release/choreo
 

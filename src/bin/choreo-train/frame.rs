@@ -1,0 +1,155 @@
+//! The frame model: training (the loop is `choreo::train::frame_run`),
+//! export with its parity check, and the per-corpus table.
+
+use super::*;
+
+pub(crate) fn frame(a: FrameArgs, engine: &choreo::lm::engine::Engine) -> Result<()> {
+    let mut kinds = a.cond.clone();
+    for k in &a.classify {
+        if !kinds.contains(k) {
+            kinds.push(k.clone());
+        }
+    }
+    let known = if a.resume || a.init_from.is_some() {
+        let from = a.init_from.as_ref().unwrap_or(&a.out);
+        let (st, _, _): (tr::frame::FrameState, _, _) = tr::load_parts(from, &tr::device())?;
+        Some(st.vocabulary)
+    } else {
+        None
+    };
+    let (vocab, corpus) = load_corpus(&a.data, known.as_ref(), &kinds, false, a.fps)?;
+    eprintln!(
+        "data: {} files from {:?}; {} train / {} validation sequences; {} training tokens (mirrors included)",
+        corpus.info.files,
+        corpus.info.corpora,
+        corpus.info.train_sequences,
+        corpus.info.val_sequences,
+        corpus.info.train_tokens
+    );
+    let run = tr::frame::FrameRun {
+        out: a.out.clone(),
+        resume: a.resume,
+        init_from: a.init_from.clone(),
+        config: choreo::lm::frame::FrameConfig {
+            bins: vocab.bins,
+            slots: vocab.frame_len() - 1,
+            radius: a.radius,
+            d_emb: a.d_emb,
+            d_global: a.d_global,
+            global_layers: a.global_layers,
+            global_heads: a.global_heads,
+            d_local: a.d_local,
+            local_layers: a.local_layers,
+            local_heads: a.local_heads,
+            max_frames: a.frames,
+            vocab_size: vocab.size(),
+            cond_kinds: known_kinds(&vocab, &a.cond),
+            classes: class_values(&vocab, &a.classify)?,
+            ln_eps: 1e-5,
+            cond_every: a.cond_every,
+        },
+        resume_steps: a.steps,
+        settings: RunSettings {
+            steps: a.steps.unwrap_or(4000),
+            batch: a.batch,
+            lr: a.lr,
+            min_lr_ratio: 0.1,
+            warmup: (a.steps.unwrap_or(4000) / 50).max(1),
+            weight_decay: 0.05,
+            dropout: 0.0,
+            eval_every: a.eval_every.max(1),
+            seed: a.seed,
+            keep_label: 0.8,
+            classify_fraction: if a.classify.is_empty() { 0.0 } else { 0.25 },
+            class_weight: 1.0,
+            mask_rate: 0.0,
+            max_seconds: a.max_seconds,
+        },
+    };
+    if a.untrained {
+        let cfg = run.config.clone();
+        cfg.validate("--frame flags")
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let net = tr::frame::FrameNet::new(cfg.clone(), &tr::device())?;
+        let mut st = tr::frame::FrameState::fresh(cfg, &vocab, &run.settings, &corpus);
+        st.metrics
+            .insert("parameters".to_string(), net.params.count() as f64);
+        export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"), engine)?;
+        eprintln!(
+            "untrained model, {} parameters, exported to {}",
+            net.params.count(),
+            a.out.join("export").display()
+        );
+        return Ok(());
+    }
+    let st = tr::frame::run(&run, &vocab, &corpus)?;
+    let net = tr::frame::load(&a.out, &tr::device())?.1;
+    export_frame(&net, &vocab, &corpus, &st, &a.out.join("export"), engine)?;
+    print_frame_table(&net, &vocab, &corpus, &st.metrics)
+}
+
+/// Exports a frame model and checks the export against the trainer on the
+/// first held-out sequence.
+pub(crate) fn export_frame(
+    net: &tr::frame::FrameNet,
+    vocab: &choreo::tokenize::vocab::Vocabulary,
+    corpus: &Corpus,
+    st: &tr::frame::FrameState,
+    dir: &Path,
+    engine: &choreo::lm::engine::Engine,
+) -> Result<()> {
+    let training = serde_json::json!({
+        "steps": st.step,
+        "settings": st.settings,
+        "train_seconds": st.train_seconds,
+        "history": st.history,
+    });
+    let m = tr::frame_export::export(
+        net,
+        vocab,
+        st.data.clone(),
+        st.metrics.clone(),
+        training,
+        dir,
+    )?;
+    let seq = corpus
+        .val
+        .first()
+        .or(corpus.train.first())
+        .context("no sequence for the parity check")?;
+    let values = tr::frame::value_frames(&seq.tokens, vocab.frame_len());
+    let labels = vocab.known_labels(&seq.labels);
+    let labels = labels
+        .into_iter()
+        .filter(|(k, _)| net.cfg.cond_kinds.contains(k))
+        .collect();
+    let (worst, scale) = tr::frame_export::parity(net, vocab, dir, &values, &labels, engine)?;
+    eprintln!(
+        "exported {} + {} to {}; parity on {}: max |{} − trainer| = {worst:.2e} (logits up to {scale:.1})",
+        m.global_onnx,
+        m.local_onnx,
+        dir.display(),
+        seq.name,
+        engine.runtime().name()
+    );
+    Ok(())
+}
+
+/// Prints the frame model's per-corpus table (one JSON line per row on
+/// standard error as it comes, then all of it with the run's metrics).
+pub(crate) fn print_frame_table(
+    net: &tr::frame::FrameNet,
+    vocab: &choreo::tokenize::vocab::Vocabulary,
+    corpus: &Corpus,
+    metrics: &BTreeMap<String, f64>,
+) -> Result<()> {
+    let rows = tr::frame::table(net, vocab, corpus)?;
+    for r in &rows {
+        eprintln!("{r}");
+    }
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&serde_json::json!({"rows": rows, "metrics": metrics}))?
+    );
+    Ok(())
+}
