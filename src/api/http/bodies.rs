@@ -1,0 +1,243 @@
+//! The REST request bodies as JSON: each refuses fields it does not know
+//! (named in the error), and turns into the transport-neutral parameters.
+
+use super::super::{ApiError, MotionInput};
+use super::MotionJson;
+use crate::motion::Labels;
+use base64::Engine;
+use serde::Deserialize;
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileJson {
+    #[serde(default)]
+    pub name: String,
+    pub content_base64: String,
+    /// Keypoint layout of a `.npy` / keypoint `.json`: `h36m17` or `mediapipe33`.
+    #[serde(default)]
+    pub keypoints: Option<String>,
+    /// Frame rate of a file that carries none.
+    #[serde(default)]
+    pub fps: Option<f64>,
+    /// The file's up axis (`y`, `-y`, `z`, `-z`, `x`, `-x`).
+    #[serde(default)]
+    pub up: Option<String>,
+    #[serde(default)]
+    pub min_confidence: Option<f64>,
+    /// Keypoint smoothing before the solve (Gaussian σ, seconds; 0 = off).
+    #[serde(default)]
+    pub smooth_s: Option<f64>,
+}
+
+/// Exactly one of `motion` (inline), `file` (an upload, base64) or `id` (a
+/// stored motion).
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourceJson {
+    pub motion: Option<MotionJson>,
+    pub file: Option<FileJson>,
+    pub id: Option<i64>,
+}
+
+pub(super) fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, ApiError> {
+    let s = s.ok_or_else(|| ApiError::invalid(field, "missing"))?;
+    match (s.motion, s.file, s.id) {
+        (None, None, Some(id)) => Ok(MotionInput::Stored(id)),
+        (Some(m), None, None) => Ok(MotionInput::Inline(super::super::motion_from_json(
+            &format!("{field}.motion"),
+            m,
+        )?)),
+        (None, Some(f), None) => {
+            let bytes = base64::engine::general_purpose::STANDARD
+                .decode(f.content_base64.as_bytes())
+                .map_err(|e| {
+                    ApiError::invalid(format!("{field}.file.content_base64"), e.to_string())
+                })?;
+            Ok(MotionInput::File {
+                read: super::super::read_options(
+                    &format!("{field}.file"),
+                    f.keypoints.as_deref(),
+                    f.fps,
+                    f.up.as_deref(),
+                    f.min_confidence,
+                    f.smooth_s,
+                )?,
+                name: f.name,
+                bytes,
+            })
+        }
+        _ => Err(ApiError::invalid(
+            field,
+            "give exactly one of motion, file or id",
+        )),
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QueryBody {
+    pub motion: Option<SourceJson>,
+    #[serde(default)]
+    pub start_s: f64,
+    #[serde(default)]
+    pub frames: usize,
+    #[serde(default)]
+    pub k: usize,
+    #[serde(default)]
+    pub embedding: String,
+    #[serde(default)]
+    pub metric: String,
+    #[serde(default)]
+    pub filters: Labels,
+    #[serde(default)]
+    pub exact: bool,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InterpolateBody {
+    pub input: Option<SourceJson>,
+    pub target: Option<SourceJson>,
+    #[serde(default)]
+    pub band: Option<[usize; 2]>,
+    #[serde(default)]
+    pub objective: String,
+    #[serde(default)]
+    pub steps: usize,
+    #[serde(default)]
+    pub learning_rate: f64,
+    #[serde(default)]
+    pub despike: bool,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LowpassBody {
+    pub motion: Option<SourceJson>,
+    pub cutoff: usize,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyframesBody {
+    pub motion: Option<SourceJson>,
+    pub count: usize,
+    #[serde(default)]
+    pub select: String,
+    #[serde(default)]
+    pub inbetween: String,
+    #[serde(default)]
+    pub bpm: f64,
+    pub music: Option<FileJson>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IngestBody {
+    pub motion: Option<SourceJson>,
+    #[serde(default)]
+    pub labels: Labels,
+    /// The footage the motion was estimated from (path or URL).
+    #[serde(default)]
+    pub video: Option<String>,
+    /// Video time of the motion's first frame, seconds (default 0).
+    #[serde(default)]
+    pub video_offset_s: Option<f64>,
+    /// The collection to store it in (default `default`); it must exist
+    /// and be the token's.
+    #[serde(default)]
+    pub collection: Option<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AuditQuery {
+    #[serde(default = "default_audit_limit")]
+    pub limit: i64,
+}
+
+pub(super) fn default_audit_limit() -> i64 {
+    100
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollectionBody {
+    pub name: String,
+}
+
+/// Sampling settings as JSON, all optional. Without a temperature the
+/// request gets the recommended setting (`lm::generate::RECOMMENDED`), with
+/// its own `top_k` / `top_p` where given; `"temperature": 0` is greedy.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SamplingJson {
+    pub temperature: Option<f64>,
+    pub top_k: Option<usize>,
+    pub top_p: Option<f64>,
+    #[serde(default)]
+    pub seed: u64,
+    /// Classifier-free guidance toward the labels (1 = plain
+    /// conditioning); absent = the recommended value.
+    pub guidance: Option<f64>,
+}
+
+impl SamplingJson {
+    pub fn to_sampling(&self) -> crate::lm::Sampling {
+        let r = crate::lm::Sampling::recommended(self.seed);
+        let guidance = self.guidance.unwrap_or(r.guidance);
+        match self.temperature {
+            None => crate::lm::Sampling {
+                top_k: self.top_k.unwrap_or(r.top_k),
+                top_p: self.top_p.unwrap_or(r.top_p),
+                guidance,
+                ..r
+            },
+            Some(t) => crate::lm::Sampling {
+                temperature: t,
+                top_k: self.top_k.unwrap_or(0),
+                top_p: self.top_p.unwrap_or(1.0),
+                seed: self.seed,
+                guidance,
+            },
+        }
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GenerateBody {
+    #[serde(default)]
+    pub labels: Labels,
+    #[serde(default)]
+    pub frames: usize,
+    pub prompt: Option<SourceJson>,
+    #[serde(default)]
+    pub prompt_joints: Vec<String>,
+    pub seed_motion: Option<SourceJson>,
+    #[serde(default)]
+    pub sampling: SamplingJson,
+}
+
+impl GenerateBody {
+    /// The request both REST and the WebSocket stream take.
+    pub(crate) fn params(self) -> Result<super::super::lm::GenerateParams, ApiError> {
+        Ok(super::super::lm::GenerateParams {
+            labels: self.labels,
+            frames: self.frames,
+            prompt: self.prompt.map(|x| source("prompt", Some(x))).transpose()?,
+            prompt_joints: self.prompt_joints,
+            seed_motion: self
+                .seed_motion
+                .map(|x| source("seed_motion", Some(x)))
+                .transpose()?,
+            sampling: self.sampling.to_sampling(),
+        })
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClassifyBody {
+    pub motion: Option<SourceJson>,
+}
