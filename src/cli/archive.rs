@@ -63,7 +63,8 @@ pub struct QueryArgs {
     #[arg(long, default_value_t = 10)]
     pub k: usize,
     /// stft, dct, pca or pose (default: pose for keypoint / SMPL-from-video
-    /// files, i.e. with --keypoints or --source-fps; dct otherwise).
+    /// files, i.e. with --keypoints or --source-fps; stft otherwise, as over
+    /// the API).
     #[arg(long)]
     pub embedding: Option<String>,
     #[arg(long, default_value = "cosine")]
@@ -138,7 +139,7 @@ pub fn query_cmd(a: QueryArgs) -> Result<()> {
     } = a;
     let read = read.with_fps(&fps)?;
     let footage = read.keypoints.is_some() || read.source_fps.is_some();
-    let embedding = embedding.unwrap_or_else(|| if footage { "pose" } else { "dct" }.into());
+    let embedding = embedding.unwrap_or_else(|| if footage { "pose" } else { "stft" }.into());
     let embedding = Embedding::parse(&embedding)
         .with_context(|| format!("--embedding: '{embedding}' is not stft, dct, pca or pose"))?;
     let metric = Metric::parse(&metric)
