@@ -10,7 +10,7 @@ use crate::features::{
 };
 use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::{Labels, Motion, MotionError};
-use crate::store::{MotionRow, NewMotion, NewWindow, Store, StoreError, VideoLink};
+use crate::store::{Inserted, MotionRow, NewMotion, NewWindow, Store, StoreError, VideoLink};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
@@ -288,20 +288,14 @@ pub async fn ingest_bytes(
     match prepared {
         Ok(Ok(m)) => {
             let windows = m.windows.len();
-            match store.insert_motion(&m).await {
-                Ok((motion_id, _)) => Ok(Ok(Stored::New { motion_id, windows })),
+            Ok(Ok(match store.insert_motion(&m).await? {
+                Inserted::New { id, .. } => Stored::New {
+                    motion_id: id,
+                    windows,
+                },
                 // Another replica stored it since the lookup.
-                Err(StoreError::Duplicate { .. }) => {
-                    match store.motion_by_hash(&m.content_hash).await? {
-                        Some(id) => Ok(Ok(Stored::Existing { motion_id: id })),
-                        None => Err(StoreError::Duplicate {
-                            path: store.label().to_string(),
-                            hash: m.content_hash.clone(),
-                        }),
-                    }
-                }
-                Err(e) => Err(e),
-            }
+                Inserted::Existing(id) => Stored::Existing { motion_id: id },
+            }))
         }
         Ok(Err(e)) | Err(e) => Ok(Err(e)),
     }

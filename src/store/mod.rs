@@ -45,9 +45,6 @@ pub enum StoreError {
     /// network cut): retry later. The API answers 503 / UNAVAILABLE.
     #[error("{path}: the store is unavailable: {reason}")]
     Unavailable { path: String, reason: String },
-    /// Another writer (a replica) stored the same content first.
-    #[error("{path}: content {hash} is stored already")]
-    Duplicate { path: String, hash: String },
     /// A store migrated by a newer choreo.
     #[error("{path}: the store was migrated by a newer choreo (it has migration {found}; this build knows migrations up to {known}): upgrade choreo, or point it at another store")]
     TooNew {
@@ -55,6 +52,17 @@ pub enum StoreError {
         found: i64,
         known: i64,
     },
+}
+
+/// What [`Store::insert_motion`] did.
+#[derive(Debug, PartialEq)]
+pub enum Inserted {
+    New {
+        id: i64,
+        window_ids: Vec<i64>,
+    },
+    /// Another writer stored the same content first: its motion.
+    Existing(i64),
 }
 
 /// Which engine a store runs on.

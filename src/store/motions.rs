@@ -14,9 +14,10 @@ impl Store {
     }
 
     /// Insert a motion, its channels, windows and embeddings in one
-    /// transaction. Returns the motion id and its window ids (in the order
-    /// of `m.windows`).
-    pub async fn insert_motion(&self, m: &NewMotion) -> Result<(i64, Vec<i64>)> {
+    /// transaction: its id and window ids (in the order of `m.windows`), or,
+    /// when another writer (a replica) stored the same content first, that
+    /// motion's id.
+    pub async fn insert_motion(&self, m: &NewMotion) -> Result<Inserted> {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
         let labels = serde_json::to_string(&m.labels).unwrap_or_else(|_| "{}".into());
         // The next motion id: SQLite keeps the highest id ever given in a
@@ -46,13 +47,17 @@ impl Store {
                 .await;
         let id = match inserted {
             Ok(id) => id,
-            // Another replica stored the same content between the caller's
-            // lookup and this insert: the caller answers with its id.
+            // Another writer stored the same content between the caller's
+            // lookup and this insert: roll back, answer with its id.
             Err(sqlx::Error::Database(e)) if e.is_unique_violation() => {
-                return Err(StoreError::Duplicate {
-                    path: self.label.clone(),
-                    hash: m.content_hash.clone(),
-                })
+                drop(tx);
+                return match self.motion_by_hash(&m.content_hash).await? {
+                    Some(id) => Ok(Inserted::Existing(id)),
+                    None => Err(self.corrupt(
+                        "motions.content_hash",
+                        format!("{} refused as stored, then not found", m.content_hash),
+                    )),
+                };
             }
             Err(e) => return Err(self.db(e)),
         };
@@ -96,7 +101,7 @@ impl Store {
         }
         bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
         tx.commit().await.map_err(|e| self.db(e))?;
-        Ok((id, window_ids))
+        Ok(Inserted::New { id, window_ids })
     }
 
     /// Merge labels into a stored motion's (given values win). Returns the

@@ -8,7 +8,7 @@ use crate::index::AnnIndex;
 use crate::motion::{Labels, MotionError};
 use crate::service::ingest::{self, identity_hash, IngestOptions, Stored};
 use crate::service::query::QueryError;
-use crate::store::{StoreError, WindowRef};
+use crate::store::{Inserted, WindowRef};
 use serde::Serialize;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -37,24 +37,7 @@ impl Searcher {
         let hash = identity_hash(&opts.collection, &bytes);
         let _w = self.writes.lock().await;
         if let Some(id) = self.store.motion_by_hash(&hash).await? {
-            let mut merged_labels = None;
-            if !opts.extra_labels.is_empty() {
-                merged_labels = self.store.merge_labels(id, &opts.extra_labels).await?;
-                if let (Some(l), Some(row)) = (
-                    &merged_labels,
-                    self.catalog
-                        .write()
-                        .expect("catalog lock")
-                        .motions
-                        .get_mut(&id),
-                ) {
-                    row.labels = l.clone();
-                }
-            }
-            return Ok(Ok(IngestOutcome {
-                stored: Stored::Existing { motion_id: id },
-                merged_labels,
-            }));
+            return self.existing(id, opts).await.map(Ok);
         }
         let pca = self.catalog().pca.clone();
         let (opts2, name2) = (opts.clone(), name.to_string());
@@ -67,27 +50,11 @@ impl Searcher {
             Ok(m) => m,
             Err(e) => return Ok(Err(e)),
         };
-        let (motion_id, window_ids) = match self.store.insert_motion(&m).await {
-            Ok(x) => x,
+        let (motion_id, window_ids) = match self.store.insert_motion(&m).await? {
+            Inserted::New { id, window_ids } => (id, window_ids),
             // Another replica stored the same content since the lookup
             // above: answer with its id, as if it had been here first.
-            Err(StoreError::Duplicate { .. }) => {
-                let id = self
-                    .store
-                    .motion_by_hash(&m.content_hash)
-                    .await?
-                    .ok_or_else(|| QueryError::Index(name.into(), "duplicate vanished".into()))?;
-                let merged_labels = if opts.extra_labels.is_empty() {
-                    None
-                } else {
-                    self.store.merge_labels(id, &opts.extra_labels).await?
-                };
-                return Ok(Ok(IngestOutcome {
-                    stored: Stored::Existing { motion_id: id },
-                    merged_labels,
-                }));
-            }
-            Err(e) => return Err(e.into()),
+            Inserted::Existing(id) => return self.existing(id, opts).await.map(Ok),
         };
         let row = self
             .store
@@ -143,6 +110,29 @@ impl Searcher {
             },
             merged_labels: None,
         }))
+    }
+
+    /// The answer for content already stored as motion `id`: labels sent
+    /// with it are merged into its labels (and the catalog's copy).
+    async fn existing(&self, id: i64, opts: &IngestOptions) -> Result<IngestOutcome, QueryError> {
+        let mut merged_labels = None;
+        if !opts.extra_labels.is_empty() {
+            merged_labels = self.store.merge_labels(id, &opts.extra_labels).await?;
+            if let (Some(l), Some(row)) = (
+                &merged_labels,
+                self.catalog
+                    .write()
+                    .expect("catalog lock")
+                    .motions
+                    .get_mut(&id),
+            ) {
+                row.labels = l.clone();
+            }
+        }
+        Ok(IngestOutcome {
+            stored: Stored::Existing { motion_id: id },
+            merged_labels,
+        })
     }
 
     /// Remove a stored motion; its windows vanish from the next query.
