@@ -238,6 +238,10 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
             m.context_frames(),
             m.cond_kinds().join(", ")
         );
+        // The frame model's states are the `lm` search embedding.
+        if let Ok(emb) = crate::lm::embed::LmEmbedder::new(&m) {
+            searcher.set_lm(emb);
+        }
         Some(m)
     } else {
         tracing::warn!(

@@ -421,3 +421,116 @@ async fn live_writes_reach_queries_at_once() {
         .unwrap();
     assert!(hits.iter().all(|h| h.motion_id != motion_id));
 }
+
+/// The `lm` embedding (the bundled frame model's pooled states): refused
+/// clearly without a model; with one, the first `lm` query embeds every
+/// stored window once (stored with the model's fingerprint), a window
+/// finds itself, HNSW equals exact, a live ingest carries its `lm`
+/// vectors, and a store embedded by another model is embedded again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn lm_embedding_from_the_frame_model() {
+    use choreo::lm::embed::LmEmbedder;
+    use choreo::lm::model::MotionModel;
+    use choreo::service::ingest::Stored;
+    use std::sync::Arc;
+    let model_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default");
+    let model = MotionModel::load(&model_dir).unwrap();
+    let emb = LmEmbedder::new(&model).unwrap();
+    // The flat GPT has no per-frame state to pool.
+    let flat =
+        MotionModel::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("models/flat")).unwrap();
+    let err = LmEmbedder::new(&flat).err().unwrap().to_string();
+    assert!(err.contains("motion-frame-lm"), "{err}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let files = dir.path().join("files");
+    std::fs::create_dir(&files).unwrap();
+    let fast = clip("fast", 400, 3.0, 0.3, "wild");
+    for m in [
+        &clip("slow", 400, 0.5, 0.0, "calm"),
+        &fast,
+        &clip("mid", 300, 1.5, 1.0, "calm"),
+    ] {
+        write(&files, m);
+    }
+    let store = Store::open(&dir.path().join("lm.db")).await.unwrap();
+    let noop = |_: usize, _: usize, _: &str| {};
+    let r = ingest(&store, &[files], &IngestOptions::default(), &noop)
+        .await
+        .unwrap();
+    let s = Arc::new(
+        Searcher::open(store.clone(), HnswParams::default())
+            .await
+            .unwrap(),
+    );
+    let q = req(&fast, 64.0 / 60.0, Embedding::Lm, Metric::Cosine);
+    let err = s.query(q.clone()).await.err().unwrap().to_string();
+    assert!(
+        err.contains("embedding") && err.contains("frame model"),
+        "{err}"
+    );
+    assert_eq!(store.count_embeddings(Embedding::Lm).await.unwrap(), 0);
+
+    s.set_lm(emb.clone());
+    let hits = s.query(q.clone()).await.unwrap();
+    assert_eq!(
+        store.count_embeddings(Embedding::Lm).await.unwrap(),
+        r.windows
+    );
+    assert!(hits[0].source_path.ends_with("fast.npz"), "{hits:?}");
+    assert_eq!(hits[0].start_frame, 64);
+    assert!(hits[0].score > 0.9999, "{}", hits[0].score);
+    let mut ex = q.clone();
+    ex.exact = true;
+    let exact = s.query(ex).await.unwrap();
+    for (a, b) in hits.iter().zip(&exact) {
+        assert!((a.score - b.score).abs() < 1e-5, "{hits:?} vs {exact:?}");
+    }
+    // Vectors are the model's width (mean and change of 192-d states).
+    let v = store.embeddings(Embedding::Lm).await.unwrap();
+    assert!(v
+        .iter()
+        .all(|(_, x)| x.len() == emb.dim() && x.iter().all(|f| f.is_finite())));
+
+    // A live ingest carries its lm vectors into the built index.
+    let novel = clip("novel", 300, 2.2, 0.7, "wild");
+    let out = s
+        .ingest(
+            "novel.npz",
+            write_amass_npz(&novel).unwrap(),
+            &IngestOptions::default(),
+        )
+        .await
+        .unwrap()
+        .unwrap();
+    let Stored::New { motion_id, windows } = out.stored else {
+        panic!("{out:?}")
+    };
+    assert_eq!(
+        store.count_embeddings(Embedding::Lm).await.unwrap(),
+        r.windows + windows
+    );
+    let hits = s
+        .query(req(&novel, 32.0 / 60.0, Embedding::Lm, Metric::Cosine))
+        .await
+        .unwrap();
+    assert_eq!((hits[0].motion_id, hits[0].start_frame), (motion_id, 32));
+
+    // Vectors made by another model are all made again.
+    store
+        .replace_embeddings(Embedding::Lm, &[], "lm", "lm-another-model", 0)
+        .await
+        .unwrap();
+    let s2 = Arc::new(
+        Searcher::open(store.clone(), HnswParams::default())
+            .await
+            .unwrap(),
+    );
+    s2.set_lm(emb);
+    let hits = s2.query(q).await.unwrap();
+    assert_eq!(
+        store.count_embeddings(Embedding::Lm).await.unwrap(),
+        r.windows + windows
+    );
+    assert!(hits[0].source_path.ends_with("fast.npz") && hits[0].score > 0.9999);
+}

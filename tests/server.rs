@@ -138,6 +138,36 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
     }
 
     eprintln!("gRPC query ok");
+    // The frame model's embedding, by stored id, on both transports: the
+    // first lm query embeds the stored windows; a window finds itself.
+    let body = json!({"motion": {"id": rest_hits[0]["motion_id"]}, "start_s": 0.0, "k": 3, "embedding": "lm"});
+    let (status, lm) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/query", Some(&body)))
+            .await
+            .unwrap();
+    assert_eq!(status, 200, "{lm}");
+    let lm_hits = lm["hits"].as_array().unwrap().clone();
+    assert_eq!(lm_hits[0]["motion_id"], rest_hits[0]["motion_id"], "{lm}");
+    assert_eq!(lm_hits[0]["start_frame"], 0, "{lm}");
+    assert!(lm_hits[0]["score"].as_f64().unwrap() > 0.9999, "{lm}");
+    let g_lm = client
+        .query(pb::QueryRequest {
+            motion: Some(pb::MotionSource {
+                source: Some(pb::motion_source::Source::Id(
+                    rest_hits[0]["motion_id"].as_i64().unwrap(),
+                )),
+            }),
+            k: 3,
+            embedding: "lm".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    for (a, b) in g_lm.hits.iter().zip(&lm_hits) {
+        assert_eq!(a.motion_id, b["motion_id"].as_i64().unwrap());
+        assert!((a.score as f64 - b["score"].as_f64().unwrap()).abs() < 1e-6);
+    }
     // A filter no stored motion can match is refused, naming the filter
     // and what the archive has; the same over gRPC.
     for (filters, says, offers) in [

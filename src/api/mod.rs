@@ -281,7 +281,10 @@ pub async fn query(
         "" if footage => Embedding::Pose,
         "" => Embedding::Stft,
         e => Embedding::parse(e).ok_or_else(|| {
-            ApiError::invalid("embedding", format!("'{e}' is not stft, dct, pca or pose"))
+            ApiError::invalid(
+                "embedding",
+                format!("'{e}' is not stft, dct, pca, pose or lm"),
+            )
         })?,
     };
     let metric = match p.metric.as_str() {

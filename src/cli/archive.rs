@@ -40,6 +40,11 @@ pub struct IngestArgs {
     /// command line has the whole store).
     #[arg(long, default_value = "default")]
     pub collection: String,
+    /// A frame model folder: every stored window also gets its `lm`
+    /// vector from it (the model's pooled states), so `query --embedding
+    /// lm` and a server with the same model find them ready.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
     #[arg(long)]
     pub json: bool,
     #[command(flatten)]
@@ -62,11 +67,14 @@ pub struct QueryArgs {
     pub frames: usize,
     #[arg(long, default_value_t = 10)]
     pub k: usize,
-    /// stft, dct, pca or pose (default: pose for keypoint / SMPL-from-video
-    /// files, i.e. with --keypoints or --source-fps; stft otherwise, as over
-    /// the API).
+    /// stft, dct, pca, pose or lm (default: pose for keypoint /
+    /// SMPL-from-video files, i.e. with --keypoints or --source-fps; stft
+    /// otherwise, as over the API). lm needs --model.
     #[arg(long)]
     pub embedding: Option<String>,
+    /// A frame model folder, for the lm embedding.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
     #[arg(long, default_value = "cosine")]
     pub metric: String,
     /// KIND=VALUE, repeatable: hits must carry every label.
@@ -93,10 +101,12 @@ pub fn ingest_cmd(a: IngestArgs) -> Result<()> {
         video,
         video_offset,
         collection,
+        model,
         json,
         read,
         fps,
     } = a;
+    let lm = model.as_deref().map(load_lm).transpose()?;
     let read = read.with_fps(&fps)?;
     let labels = parse_pairs("--label", &label)?.into_iter().collect();
     if video.is_some() && (paths.len() != 1 || paths[0].is_dir()) {
@@ -119,7 +129,14 @@ pub fn ingest_cmd(a: IngestArgs) -> Result<()> {
         collection,
         ..Default::default()
     };
-    runtime()?.block_on(ingest(paths, db, opts, json))
+    runtime()?.block_on(ingest(paths, db, opts, lm, json))
+}
+
+/// The `lm` embedder of a frame model folder.
+fn load_lm(dir: &std::path::Path) -> Result<choreo::lm::embed::LmEmbedder> {
+    let m = choreo::lm::model::MotionModel::load(dir)
+        .with_context(|| format!("--model {}", dir.display()))?;
+    Ok(choreo::lm::embed::LmEmbedder::new(&m).context("--model")?)
 }
 
 pub fn query_cmd(a: QueryArgs) -> Result<()> {
@@ -130,6 +147,7 @@ pub fn query_cmd(a: QueryArgs) -> Result<()> {
         frames,
         k,
         embedding,
+        model,
         metric,
         filter,
         exact,
@@ -141,7 +159,12 @@ pub fn query_cmd(a: QueryArgs) -> Result<()> {
     let footage = read.keypoints.is_some() || read.source_fps.is_some();
     let embedding = embedding.unwrap_or_else(|| if footage { "pose" } else { "stft" }.into());
     let embedding = Embedding::parse(&embedding)
-        .with_context(|| format!("--embedding: '{embedding}' is not stft, dct, pca or pose"))?;
+        .with_context(|| format!("--embedding: '{embedding}' is not stft, dct, pca, pose or lm"))?;
+    let lm = match (embedding, model) {
+        (Embedding::Lm, Some(dir)) => Some(load_lm(&dir)?),
+        (Embedding::Lm, None) => bail!("--embedding lm: give the frame model with --model DIR"),
+        _ => None,
+    };
     let metric = Metric::parse(&metric)
         .with_context(|| format!("--metric: '{metric}' is not cosine or euclidean"))?;
     let filters = parse_pairs("--filter", &filter)?;
@@ -157,10 +180,16 @@ pub fn query_cmd(a: QueryArgs) -> Result<()> {
         exact,
         collections: None,
     };
-    runtime()?.block_on(query(db, req, json))
+    runtime()?.block_on(query(db, req, lm, json))
 }
 
-async fn ingest(paths: Vec<PathBuf>, db: PathBuf, opts: IngestOptions, json: bool) -> Result<()> {
+async fn ingest(
+    paths: Vec<PathBuf>,
+    db: PathBuf,
+    opts: IngestOptions,
+    lm: Option<choreo::lm::embed::LmEmbedder>,
+    json: bool,
+) -> Result<()> {
     if opts.hop == 0 {
         bail!("--hop must be at least 1");
     }
@@ -183,9 +212,24 @@ async fn ingest(paths: Vec<PathBuf>, db: PathBuf, opts: IngestOptions, json: boo
     };
     let report = choreo::service::ingest::ingest(&store, &paths, &opts, &progress).await?;
     bar.finish_and_clear();
+    let lm_windows = match lm {
+        Some(emb) => {
+            let searcher = Searcher::open(store, HnswParams::default()).await?;
+            searcher.set_lm(emb);
+            Some(searcher.prepare_lm().await?)
+        }
+        None => None,
+    };
     if json {
-        println!("{}", serde_json::to_string(&report)?);
+        let mut v = serde_json::to_value(&report)?;
+        if let Some(n) = lm_windows {
+            v["lm_windows"] = json!(n);
+        }
+        println!("{v}");
     } else {
+        if let Some(n) = lm_windows {
+            println!("lm vectors computed for {n} stored windows");
+        }
         println!(
             "{} files: {} motions stored ({} windows), {} already stored, {} errors",
             report.files,
@@ -202,12 +246,20 @@ async fn ingest(paths: Vec<PathBuf>, db: PathBuf, opts: IngestOptions, json: boo
     Ok(())
 }
 
-async fn query(db: PathBuf, req: QueryRequest, json: bool) -> Result<()> {
+async fn query(
+    db: PathBuf,
+    req: QueryRequest,
+    lm: Option<choreo::lm::embed::LmEmbedder>,
+    json: bool,
+) -> Result<()> {
     if !db.exists() {
         bail!("{}: no such store (run choreo ingest first)", db.display());
     }
     let store = Store::open(&db).await?;
     let searcher = std::sync::Arc::new(Searcher::open(store, HnswParams::default()).await?);
+    if let Some(emb) = lm {
+        searcher.set_lm(emb);
+    }
     let (embedding, metric) = (req.embedding, req.metric);
     let hits = searcher.query(req).await?;
     if json {

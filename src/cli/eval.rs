@@ -48,7 +48,8 @@ pub enum EvalCmd {
         /// Label kinds to score, comma-separated (e.g. content,style or genre,dancer).
         #[arg(long, value_delimiter = ',', required = true)]
         labels: Vec<String>,
-        /// Embeddings to evaluate (default: all three).
+        /// Embeddings to evaluate: stft, dct, pca, pose, lm (default: the
+        /// three spectral ones; lm needs --model).
         #[arg(long, value_delimiter = ',')]
         embedding: Vec<String>,
         #[arg(long, default_value_t = 32)]
@@ -59,6 +60,14 @@ pub enum EvalCmd {
         /// allow: any window but the query itself (the thesis's protocol).
         #[arg(long, default_value = "exclude")]
         same_sequence: eval_q::SameSequence,
+        /// all: every window is a query; held-out: only windows of the
+        /// trainer's held-out sequences (per folder, 10 % by name hash),
+        /// which a model trained on the same folder never saw.
+        #[arg(long, default_value = "all")]
+        queries: eval_q::Queries,
+        /// A frame model folder, for the lm embedding.
+        #[arg(long)]
+        model: Option<PathBuf>,
         #[arg(long)]
         json: bool,
     },
@@ -120,8 +129,19 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             hop,
             k,
             same_sequence,
+            queries,
+            model,
             json,
-        } => eval_query(data, labels, embedding, hop, k, same_sequence, json),
+        } => eval_query(
+            data,
+            labels,
+            embedding,
+            hop,
+            k,
+            (same_sequence, queries),
+            model,
+            json,
+        ),
         EvalCmd::Tokenize { data, plot, json } => eval_tokenize(data, plot, json),
         EvalCmd::Generate {
             model,
@@ -157,7 +177,8 @@ fn eval_query(
     embedding: Vec<String>,
     hop: usize,
     k: usize,
-    same: eval_q::SameSequence,
+    (same, queries): (eval_q::SameSequence, eval_q::Queries),
+    model: Option<PathBuf>,
     json: bool,
 ) -> Result<()> {
     if data.is_empty() {
@@ -169,22 +190,32 @@ fn eval_query(
         embedding
             .iter()
             .map(|e| {
-                Embedding::parse(e)
-                    .with_context(|| format!("--embedding: '{e}' is not stft, dct or pca"))
+                Embedding::parse(e).with_context(|| {
+                    format!("--embedding: '{e}' is not stft, dct, pca, pose or lm")
+                })
             })
             .collect::<Result<_>>()?
     };
+    let lm = match (&model, embeddings.contains(&Embedding::Lm)) {
+        (Some(dir), true) => {
+            let m = choreo::lm::model::MotionModel::load(dir)
+                .with_context(|| format!("--model {}", dir.display()))?;
+            Some(choreo::lm::embed::LmEmbedder::new(&m).context("--model")?)
+        }
+        (None, true) => bail!("--embedding lm: give the frame model with --model DIR"),
+        _ => None,
+    };
     let files = choreo::service::ingest::collect_files(&data);
     let t = std::time::Instant::now();
-    let corpus = eval_q::build_corpus(&files, hop, &embeddings);
+    let corpus = eval_q::build_corpus_with(&files, hop, &embeddings, lm.as_ref());
     if corpus.sequence.is_empty() {
         bail!(
             "no windows: none of {} files gave a 128-frame window",
             files.len()
         );
     }
-    let rows = eval_q::evaluate_with(&corpus, &labels, k, same);
-    let majority = eval_q::majority(&corpus, &labels);
+    let rows = eval_q::evaluate_queries(&corpus, &labels, k, same, queries);
+    let majority = eval_q::majority_of(&corpus, &labels, queries);
     if json {
         let majority: Vec<_> = majority
             .iter()
@@ -192,16 +223,23 @@ fn eval_query(
             .collect();
         println!(
             "{}",
-            json!({"rows": rows, "majority": majority, "same_sequence": same, "sequences": corpus.sequences, "windows": corpus.sequence.len(), "errors": corpus.errors, "seconds": t.elapsed().as_secs_f64()})
+            json!({"rows": rows, "majority": majority, "same_sequence": same, "queries": queries, "sequences": corpus.sequences, "windows": corpus.sequence.len(), "errors": corpus.errors, "seconds": t.elapsed().as_secs_f64()})
         );
     } else {
         println!(
-            "{} sequences, {} windows (128 frames at 60 fps, hop {hop}), k = {k}, same-sequence neighbours {}",
+            "{} sequences, {} windows (128 frames at 60 fps, hop {hop}), k = {k}, same-sequence neighbours {}, queries: {}",
             corpus.sequences,
             corpus.sequence.len(),
             match same {
                 eval_q::SameSequence::Exclude => "excluded",
                 eval_q::SameSequence::Allow => "allowed (the query window itself excluded)",
+            },
+            match queries {
+                eval_q::Queries::All => "every window".to_string(),
+                eval_q::Queries::HeldOut => format!(
+                    "the {} windows of held-out sequences",
+                    corpus.held_out.iter().filter(|h| **h).count()
+                ),
             }
         );
         println!(

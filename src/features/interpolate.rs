@@ -423,11 +423,14 @@ fn build_objective(
     let n = x0.len();
     let (lo, hi) = opts.band;
     Ok(match opts.objective {
-        Embedding::Pose => {
+        Embedding::Pose | Embedding::Lm => {
             return Err(MotionError::invalid(
                 "interpolate",
                 "objective",
-                "the pose embedding is for search; interpolation moves dct, stft or pca features",
+                format!(
+                    "the {} embedding is for search; interpolation moves dct, stft or pca features",
+                    opts.objective.name()
+                ),
             ))
         }
         Embedding::Dct => {

@@ -47,6 +47,9 @@ pub enum Embedding {
     Dct,
     Pca,
     Pose,
+    /// The frame model's pooled global states ([`crate::lm::embed`]);
+    /// only where a frame model is loaded.
+    Lm,
 }
 
 impl Embedding {
@@ -65,6 +68,7 @@ impl Embedding {
             Embedding::Dct => "dct",
             Embedding::Pca => "pca",
             Embedding::Pose => "pose",
+            Embedding::Lm => "lm",
         }
     }
     pub fn parse(s: &str) -> Option<Embedding> {
@@ -73,6 +77,7 @@ impl Embedding {
             "dct" => Some(Embedding::Dct),
             "pca" => Some(Embedding::Pca),
             "pose" => Some(Embedding::Pose),
+            "lm" => Some(Embedding::Lm),
             _ => None,
         }
     }
@@ -249,6 +254,8 @@ impl Extractor {
             Embedding::Stft => self.stft.dim(),
             Embedding::Dct | Embedding::Pca => CHANNELS * COEFFS,
             Embedding::Pose => pose::POSE_DIM,
+            // The model's width; the embedder says it.
+            Embedding::Lm => 0,
         }
     }
 
@@ -319,6 +326,11 @@ impl Extractor {
                 })?;
                 Ok(p.project_window(win))
             }
+            Embedding::Lm => Err(MotionError::invalid(
+                "lm",
+                "model",
+                "the lm embedding is the model's: it needs a frame model loaded (--model)",
+            )),
         }
     }
 }

@@ -265,6 +265,41 @@ impl FrameSession {
         Ok(out)
     }
 
+    /// The global states along whole frames of value tokens (`slots`
+    /// each, at most the context), unconditioned, pooled: the mean state
+    /// and the mean absolute change of the state from frame to frame,
+    /// concatenated (`2 × d_global`). The search embedding `lm`.
+    pub fn pooled_states(&self, values: &[u32]) -> Result<Vec<f32>, LmError> {
+        let c = self.config();
+        let s = c.slots;
+        let n = (values.len() / s).min(c.max_frames);
+        if n == 0 {
+            return Err(LmError::invalid("request", "motion", "no whole frame"));
+        }
+        let cond = self.cond(&Labels::new())?;
+        let (mut gs, _) = self.states()?;
+        let mut cache = self.new_global_cache();
+        self.global_step(&mut gs, &mut cache, &cond, None)?;
+        let d = c.d_global;
+        let mut out = vec![0f32; 2 * d];
+        let mut last: Option<Vec<f32>> = None;
+        for f in 0..n {
+            let frame = &values[f * s..(f + 1) * s];
+            let p1 = (f > 0).then(|| &values[(f - 1) * s..f * s]);
+            let (h, _) = self.global_step(&mut gs, &mut cache, &cond, Some((frame, p1)))?;
+            for (o, x) in out[..d].iter_mut().zip(&h) {
+                *o += x / n as f32;
+            }
+            if let Some(prev) = &last {
+                for ((o, x), p) in out[d..].iter_mut().zip(&h).zip(prev) {
+                    *o += (x - p).abs() / (n - 1) as f32;
+                }
+            }
+            last = Some(h);
+        }
+        Ok(out)
+    }
+
     /// Class logits per kind (manifest order) of whole frames of value
     /// tokens (`slots` each), unconditioned: the mean over frames of each
     /// step's class logits (= the head on the mean state).

@@ -18,6 +18,7 @@
 //! only place that says so; the trainer and the server both call them.
 
 pub mod duet;
+pub mod embed;
 pub mod engine;
 pub mod frame;
 pub mod frame_runtime;

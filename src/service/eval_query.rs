@@ -10,10 +10,12 @@
 
 use crate::features::{channels72, window, window_starts, Embedding, Extractor, Pca, StftParams};
 use crate::index::{dot, push_top, Hit, Metric};
+use crate::lm::embed::LmEmbedder;
 use crate::motion::io::{read_path, ReadOptions};
 use crate::motion::Labels;
 use serde::Serialize;
-use std::collections::HashMap;
+use sha2::{Digest, Sha256};
+use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 
 #[derive(Clone, Debug, Serialize)]
@@ -33,32 +35,97 @@ pub struct Corpus {
     pub vectors: HashMap<Embedding, Vec<Vec<f32>>>,
     pub sequences: usize,
     pub errors: Vec<String>,
+    /// Per window: its sequence is in the trainer's held-out split (per
+    /// folder, the first 10 % of sequences ordered by the SHA-256 of their
+    /// name, [`crate::data::held_out_count`]): a model never trained on it.
+    pub held_out: Vec<bool>,
+}
+
+/// Which windows are queries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Queries {
+    /// Every window.
+    All,
+    /// Only windows of the trainer's held-out sequences (their neighbours
+    /// may be any other sequence's): the fair test of an embedding learned
+    /// from the same folders.
+    HeldOut,
+}
+
+impl std::str::FromStr for Queries {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Queries, String> {
+        match s {
+            "all" => Ok(Queries::All),
+            "held-out" => Ok(Queries::HeldOut),
+            other => Err(format!("{other:?}: expected all or held-out")),
+        }
+    }
 }
 
 pub fn build_corpus(files: &[PathBuf], hop: usize, embeddings: &[Embedding]) -> Corpus {
+    build_corpus_with(files, hop, embeddings, None)
+}
+
+/// [`build_corpus`], with the `lm` embedding when a frame model is given
+/// (asked for without one, `lm` is left out and said in `errors`).
+pub fn build_corpus_with(
+    files: &[PathBuf],
+    hop: usize,
+    embeddings: &[Embedding],
+    lm: Option<&LmEmbedder>,
+) -> Corpus {
     let ex = Extractor::new(StftParams::default()).expect("default STFT");
     let mut windows: Vec<Vec<f32>> = Vec::new();
     let mut sequence = Vec::new();
     let mut labels = Vec::new();
     let mut errors = Vec::new();
+    // Per folder: (name hash, sequence) for the held-out split.
+    let mut by_folder: BTreeMap<PathBuf, Vec<(String, usize)>> = BTreeMap::new();
     let mut seq = 0;
     for f in files {
-        let ch = match read_path(f, &ReadOptions::default())
-            .and_then(|l| Ok((channels72(&l.motion)?, l.motion.labels)))
-        {
-            Ok(x) => x,
+        let loaded = match read_path(f, &ReadOptions::default()) {
+            Ok(l) => l,
             Err(e) => {
                 errors.push(e.to_string());
                 continue;
             }
         };
-        for s in window_starts(ch.0.len(), hop) {
-            windows.push(window(&ch.0, s));
+        let ch = match channels72(&loaded.motion) {
+            Ok(c) => c,
+            Err(e) => {
+                errors.push(e.to_string());
+                continue;
+            }
+        };
+        let starts = window_starts(ch.len(), hop);
+        for &s in &starts {
+            windows.push(window(&ch, s));
             sequence.push(seq);
-            labels.push(ch.1.clone());
+            labels.push(loaded.motion.labels.clone());
         }
+        let hash: String = Sha256::digest(loaded.motion.name.as_bytes())
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        by_folder
+            .entry(f.parent().map(|p| p.to_path_buf()).unwrap_or_default())
+            .or_default()
+            .push((hash, seq));
         seq += 1;
     }
+    let mut held_seq = vec![false; seq];
+    for list in by_folder.values_mut() {
+        list.sort();
+        for &(_, s) in list
+            .iter()
+            .take(crate::data::held_out_count(list.len(), 0.1))
+        {
+            held_seq[s] = true;
+        }
+    }
+    let held_out = sequence.iter().map(|&s| held_seq[s]).collect();
     let mut vectors = HashMap::new();
     for &e in embeddings {
         let v: Vec<Vec<f32>> = match e {
@@ -66,6 +133,19 @@ pub fn build_corpus(files: &[PathBuf], hop: usize, embeddings: &[Embedding]) -> 
                 Ok(p) => windows.iter().map(|w| p.project_window(w)).collect(),
                 Err(_) => continue,
             },
+            Embedding::Lm => {
+                let Some(emb) = lm else {
+                    errors.push("lm: no frame model given (--model DIR)".into());
+                    continue;
+                };
+                match emb.many(&windows) {
+                    Ok(v) => v,
+                    Err(e) => {
+                        errors.push(format!("lm: {e}"));
+                        continue;
+                    }
+                }
+            }
             _ => windows
                 .iter()
                 .map(|w| ex.embed(e, w, None).expect("stft/dct"))
@@ -79,6 +159,7 @@ pub fn build_corpus(files: &[PathBuf], hop: usize, embeddings: &[Embedding]) -> 
         vectors,
         sequences: seq,
         errors,
+        held_out,
     }
 }
 
@@ -120,6 +201,18 @@ pub fn knn_both_with(
     k: usize,
     same: SameSequence,
 ) -> (Vec<Vec<Hit>>, Vec<Vec<Hit>>) {
+    knn_select(vectors, sequence, k, same, None)
+}
+
+/// [`knn_both_with`] for the windows `is_query` marks only (the others get
+/// no neighbours; every window may be a neighbour).
+pub fn knn_select(
+    vectors: &[Vec<f32>],
+    sequence: &[usize],
+    k: usize,
+    same: SameSequence,
+    is_query: Option<&[bool]>,
+) -> (Vec<Vec<Hit>>, Vec<Vec<Hit>>) {
     let n = vectors.len();
     let norms: Vec<f32> = vectors.iter().map(|v| dot(v, v).sqrt()).collect();
     let threads = std::thread::available_parallelism()
@@ -139,6 +232,10 @@ pub fn knn_both_with(
                     let mut out = Vec::with_capacity(hi - lo);
                     for i in lo..hi {
                         let (mut c, mut e) = (Vec::with_capacity(k + 1), Vec::with_capacity(k + 1));
+                        if is_query.is_some_and(|q| !q[i]) {
+                            out.push((c, e));
+                            continue;
+                        }
                         for j in 0..n {
                             let skip = match same {
                                 SameSequence::Exclude => sequence[j] == sequence[i],
@@ -236,11 +333,23 @@ pub fn score(neighbours: &[Vec<Hit>], labels: &[Labels], kind: &str) -> (f64, f6
 /// windows whose label is the most common one, over the same windows the
 /// queries score.
 pub fn majority(corpus: &Corpus, label_kinds: &[String]) -> Vec<(String, f64, usize)> {
+    majority_of(corpus, label_kinds, Queries::All)
+}
+
+/// [`majority`] over the query windows of `queries`.
+pub fn majority_of(
+    corpus: &Corpus,
+    label_kinds: &[String],
+    queries: Queries,
+) -> Vec<(String, f64, usize)> {
     label_kinds
         .iter()
         .map(|kind| {
             let mut counts: HashMap<&str, usize> = HashMap::new();
-            for l in &corpus.labels {
+            for (i, l) in corpus.labels.iter().enumerate() {
+                if queries == Queries::HeldOut && !corpus.held_out[i] {
+                    continue;
+                }
                 if let Some(v) = l.get(kind) {
                     *counts.entry(v.as_str()).or_default() += 1;
                 }
@@ -262,12 +371,28 @@ pub fn evaluate_with(
     k: usize,
     same: SameSequence,
 ) -> Vec<EvalRow> {
+    evaluate_queries(corpus, label_kinds, k, same, Queries::All)
+}
+
+/// [`evaluate_with`] over the query windows of `queries`; every embedding
+/// the corpus holds, the spectral ones first.
+pub fn evaluate_queries(
+    corpus: &Corpus,
+    label_kinds: &[String],
+    k: usize,
+    same: SameSequence,
+    queries: Queries,
+) -> Vec<EvalRow> {
     let mut rows = Vec::new();
-    for e in Embedding::ALL {
+    let mask = (queries == Queries::HeldOut).then_some(corpus.held_out.as_slice());
+    for e in Embedding::ALL
+        .into_iter()
+        .chain([Embedding::Pose, Embedding::Lm])
+    {
         let Some(v) = corpus.vectors.get(&e) else {
             continue;
         };
-        let (cos, euc) = knn_both_with(v, &corpus.sequence, k, same);
+        let (cos, euc) = knn_select(v, &corpus.sequence, k, same, mask);
         for (metric, nb) in [(Metric::Cosine, &cos), (Metric::Euclidean, &euc)] {
             for kind in label_kinds {
                 let (accuracy, entropy_bans, queries) = score(nb, &corpus.labels, kind);

@@ -8,6 +8,7 @@ use crate::features::pca::PcaAccumulator;
 use crate::features::{
     channels72, window, window_starts, Embedding, Extractor, Pca, StftParams, WINDOW,
 };
+use crate::lm::embed::LmEmbedder;
 use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::{Labels, Motion, MotionError};
 use crate::store::{Inserted, MotionRow, NewMotion, NewWindow, Store, StoreError, VideoLink};
@@ -122,17 +123,19 @@ pub fn prepare(
     hash: String,
     opts: &IngestOptions,
 ) -> Result<NewMotion, MotionError> {
-    prepare_with(file, bytes, hash, opts, None)
+    prepare_with(file, bytes, hash, opts, None, None)
 }
 
 /// [`prepare`], with PCA embeddings too when a basis is given (the live
-/// server projects new windows on the basis it is serving).
+/// server projects new windows on the basis it is serving), and `lm`
+/// embeddings when the server's frame model embeds them.
 pub fn prepare_with(
     file: &str,
     bytes: Vec<u8>,
     hash: String,
     opts: &IngestOptions,
     pca: Option<&Pca>,
+    lm: Option<&LmEmbedder>,
 ) -> Result<NewMotion, MotionError> {
     let loaded = read_bytes(file, &bytes, &opts.read)?;
     let m = &loaded.motion;
@@ -155,7 +158,16 @@ pub fn prepare_with(
                 .collect(),
             }
         })
-        .collect();
+        .collect::<Vec<_>>();
+    let mut windows = windows;
+    if let Some(emb) = lm {
+        for w in windows.iter_mut() {
+            let v = emb
+                .window(&window(&ch, w.start_frame))
+                .map_err(|e| MotionError::invalid(file, "lm", e.to_string()))?;
+            w.embeddings.push((Embedding::Lm, v));
+        }
+    }
     Ok(NewMotion {
         source_path: file.to_string(),
         content_hash: hash,

@@ -154,6 +154,14 @@ pub struct Searcher {
     /// The stored PCA model's fingerprint the catalog's basis came from
     /// (-1: none), so a basis refitted by another process is noticed.
     pca_fit: std::sync::atomic::AtomicI64,
+    /// The frame model that gives the `lm` embedding, once the server has
+    /// loaded one ([`Searcher::set_lm`]).
+    lm: std::sync::OnceLock<crate::lm::embed::LmEmbedder>,
+    /// Every stored window has its `lm` vector from that model (set by the
+    /// first `lm` index build, [`Searcher::backfill_lm`]); until then
+    /// ingests skip the `lm` embedding, so a server whose clients never
+    /// ask for it never computes it.
+    lm_ready: AtomicBool,
 }
 
 impl Searcher {
@@ -192,8 +200,36 @@ impl Searcher {
             pca_fit: std::sync::atomic::AtomicI64::new(
                 store.model("pca").await?.map_or(-1, |(g, _)| g),
             ),
+            lm: std::sync::OnceLock::new(),
+            lm_ready: AtomicBool::new(false),
             store,
         })
+    }
+
+    /// Offer the `lm` embedding with this frame model (once; later calls
+    /// are ignored).
+    pub fn set_lm(&self, embedder: crate::lm::embed::LmEmbedder) {
+        let _ = self.lm.set(embedder);
+    }
+
+    /// The `lm` embedder, or the request's error when none is loaded.
+    fn lm(&self) -> Result<&crate::lm::embed::LmEmbedder, QueryError> {
+        self.lm.get().ok_or_else(|| {
+            MotionError::invalid(
+                "query",
+                "embedding",
+                "lm is the frame model's embedding: this server has no frame model loaded (choreo serve --model DIR with a motion-frame-lm model)",
+            )
+            .into()
+        })
+    }
+
+    /// Dimensions of an embedding's vectors.
+    fn dim(&self, e: Embedding) -> usize {
+        match (e, self.lm.get()) {
+            (Embedding::Lm, Some(l)) => l.dim(),
+            _ => self.extractor.dim(e),
+        }
     }
 
     pub fn params(&self) -> HnswParams {
@@ -256,7 +292,10 @@ impl Searcher {
     /// indexes are loaded from their dump when it is current (`load`) and
     /// saved after a build.
     async fn build(&self, (e, m, exact): Key, load: bool) -> Result<Entry, QueryError> {
-        let dim = self.extractor.dim(e);
+        if e == Embedding::Lm {
+            self.backfill_lm().await?;
+        }
+        let dim = self.dim(e);
         let live = self.catalog().windows.len();
         let pca = match e {
             Embedding::Pca => self.catalog().pca.clone(),
@@ -342,6 +381,10 @@ impl Searcher {
             .into_iter()
             .map(|s| match reuse.get(&s) {
                 Some(v) => Ok(v.clone()),
+                None if req.embedding == Embedding::Lm => self
+                    .lm()?
+                    .window(&window(seg, s))
+                    .map_err(|e| QueryError::Index("lm".into(), e.to_string())),
                 None => self
                     .extractor
                     .embed(req.embedding, &window(seg, s), pca)
@@ -480,6 +523,9 @@ impl Searcher {
     }
 
     pub async fn query(self: &Arc<Self>, req: QueryRequest) -> Result<Vec<QueryHit>, QueryError> {
+        if req.embedding == Embedding::Lm {
+            self.lm()?;
+        }
         let entry = self.entry((req.embedding, req.metric, req.exact)).await?;
         // Motions of the collections the caller may see (`None`: all).
         let visible: Option<HashSet<i64>> = req.collections.as_ref().map(|cs| {

@@ -172,6 +172,28 @@ impl Store {
 
     /// Replace every embedding of `kind` and store the model that made them,
     /// in one transaction.
+    /// Add embeddings of one kind to windows that lack them (a window that
+    /// has one keeps it), in one transaction.
+    pub async fn add_embeddings(&self, kind: Embedding, rows: &[(i64, Vec<f32>)]) -> Result<()> {
+        let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
+        for (id, v) in rows {
+            sqlx::query(
+                "INSERT INTO embeddings (window_id, kind, dim, vector) VALUES ($1, $2, $3, $4) \
+                 ON CONFLICT (kind, window_id) DO NOTHING",
+            )
+            .bind(*id)
+            .bind(kind.name())
+            .bind(v.len() as i64)
+            .bind(f32s_to_blob(v))
+            .execute(&mut *tx)
+            .await
+            .map_err(|e| self.db(e))?;
+        }
+        bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
+        tx.commit().await.map_err(|e| self.db(e))?;
+        Ok(())
+    }
+
     pub async fn replace_embeddings(
         &self,
         kind: Embedding,

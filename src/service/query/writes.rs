@@ -40,9 +40,14 @@ impl Searcher {
             return self.existing(id, opts).await.map(Ok);
         }
         let pca = self.catalog().pca.clone();
+        let lm = self
+            .lm_ready
+            .load(Ordering::Acquire)
+            .then(|| self.lm.get().cloned())
+            .flatten();
         let (opts2, name2) = (opts.clone(), name.to_string());
         let prepared = tokio::task::spawn_blocking(move || {
-            ingest::prepare_with(&name2, bytes, hash, &opts2, pca.as_deref())
+            ingest::prepare_with(&name2, bytes, hash, &opts2, pca.as_deref(), lm.as_ref())
         })
         .await
         .map_err(|e| QueryError::Index(name.into(), format!("worker failed: {e}")))?;
@@ -221,13 +226,17 @@ impl Searcher {
                 if refitted && *e == Embedding::Pca {
                     continue; // rebuilt whole below
                 }
-                let items: Vec<(usize, Vec<f32>)> = self
+                let mut items: Vec<(usize, Vec<f32>)> = self
                     .store
                     .motion_embeddings(id, *e)
                     .await?
                     .into_iter()
                     .map(|(w, v)| (w as usize, v))
                     .collect();
+                if *e == Embedding::Lm && items.len() < windows.len() {
+                    // Stored by a replica that does not embed lm yet.
+                    items = self.lm_for_motion(id, &windows).await?;
+                }
                 let ix = entry.ix.clone();
                 tokio::task::spawn_blocking(move || ix.add_batch(&items))
                     .await
@@ -243,6 +252,109 @@ impl Searcher {
         }
         self.synced.store(generation, Ordering::Release);
         Ok(true)
+    }
+
+    /// [`Searcher::backfill_lm`] under the write lock: every stored window
+    /// gets its `lm` vector now, not at the first `lm` query.
+    pub async fn prepare_lm(&self) -> Result<usize, QueryError> {
+        let _w = self.writes.lock().await;
+        self.backfill_lm().await
+    }
+
+    /// Give every stored window its `lm` vector from the loaded frame model
+    /// (call with `writes` held): all of them again when the store's were
+    /// made by another model (or none were), else only the missing ones.
+    /// Returns how many were computed.
+    pub(super) async fn backfill_lm(&self) -> Result<usize, QueryError> {
+        let emb = self.lm()?.clone();
+        let current = self
+            .store
+            .model("lm")
+            .await?
+            .is_some_and(|(_, body)| body == emb.fingerprint());
+        let have: std::collections::HashSet<i64> = if current {
+            self.store
+                .embeddings(Embedding::Lm)
+                .await?
+                .into_iter()
+                .map(|(id, _)| id)
+                .collect()
+        } else {
+            Default::default()
+        };
+        let windows = self.store.windows().await?;
+        let todo: Vec<(i64, WindowRef)> = windows
+            .into_iter()
+            .filter(|(id, _)| !have.contains(id))
+            .collect();
+        if current && todo.is_empty() {
+            self.lm_ready.store(true, Ordering::Release);
+            return Ok(0);
+        }
+        let t0 = std::time::Instant::now();
+        let channels = self.store.all_channels().await?;
+        let rows = tokio::task::spawn_blocking(move || {
+            let by_motion: std::collections::HashMap<i64, &Vec<[f32; 72]>> =
+                channels.iter().map(|(id, c)| (*id, c)).collect();
+            let (ids, wins): (Vec<i64>, Vec<Vec<f32>>) = todo
+                .iter()
+                .filter_map(|(id, w)| {
+                    let ch = by_motion.get(&w.motion_id)?;
+                    Some((*id, crate::features::window(ch, w.start_frame as usize)))
+                })
+                .unzip();
+            emb.many(&wins)
+                .map(|v| ids.into_iter().zip(v).collect::<Vec<_>>())
+        })
+        .await
+        .map_err(|e| QueryError::Index("lm".into(), format!("worker failed: {e}")))?
+        .map_err(|e| QueryError::Index("lm".into(), e.to_string()))?;
+        if current {
+            self.store.add_embeddings(Embedding::Lm, &rows).await?;
+        } else {
+            let fp = self.store.windows_fingerprint().await?;
+            let body = self.lm()?.fingerprint().to_string();
+            self.store
+                .replace_embeddings(Embedding::Lm, &rows, "lm", &body, fp)
+                .await?;
+        }
+        // This process's own write: nothing for the replica sync to redo.
+        self.synced
+            .store(self.store.generation().await?, Ordering::Release);
+        tracing::info!(
+            "lm embeddings computed for {} stored windows in {:.1} s",
+            rows.len(),
+            t0.elapsed().as_secs_f64()
+        );
+        self.lm_ready.store(true, Ordering::Release);
+        Ok(rows.len())
+    }
+
+    /// The `lm` vectors of one stored motion's windows, computed from its
+    /// stored channels and stored (windows that have one keep it).
+    async fn lm_for_motion(
+        &self,
+        id: i64,
+        windows: &[(i64, WindowRef)],
+    ) -> Result<Vec<(usize, Vec<f32>)>, QueryError> {
+        let emb = self.lm()?.clone();
+        let Some((_, ch)) = self.store.channel_range(id, 0, 1 << 32).await? else {
+            return Ok(Vec::new());
+        };
+        let w = windows.to_vec();
+        let rows = tokio::task::spawn_blocking(move || {
+            let wins: Vec<Vec<f32>> = w
+                .iter()
+                .map(|(_, r)| crate::features::window(&ch, r.start_frame as usize))
+                .collect();
+            emb.many(&wins)
+                .map(|v| w.iter().map(|(id, _)| *id).zip(v).collect::<Vec<_>>())
+        })
+        .await
+        .map_err(|e| QueryError::Index("lm".into(), format!("worker failed: {e}")))?
+        .map_err(|e| QueryError::Index("lm".into(), e.to_string()))?;
+        self.store.add_embeddings(Embedding::Lm, &rows).await?;
+        Ok(rows.into_iter().map(|(i, v)| (i as usize, v)).collect())
     }
 
     /// Run [`Searcher::sync`] every `every` (a replica's view of writes
