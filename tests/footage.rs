@@ -289,7 +289,7 @@ async fn footage_ingested_with_video_is_found_from_mocap_and_finds_it() {
     .unwrap();
     assert_eq!(got.0, 200, "{}", got.1);
     assert_eq!(
-        got.1["data"]["rotations"].as_array().unwrap().len(),
+        got.1["motion"]["rotations"].as_array().unwrap().len(),
         kp.frames()
     );
     assert_eq!(hits.0, 200, "{}", hits.1);

@@ -236,6 +236,45 @@ async fn rest_and_grpc_agree_on_real_data_and_report_errors() {
     assert_eq!(k.keyframes, rest_keys);
     eprintln!("gRPC keyframes ok");
     assert!((k.mse - rest["mse"].as_f64().unwrap()).abs() < 1e-12);
+    assert_eq!(k.frames as u64, rest["frames"].as_u64().unwrap());
+    assert_eq!((k.select.as_str(), k.inbetween.as_str()), ("dp", "slerp"));
+    assert!(k.beat_alignment.is_none() && rest["beat_alignment"].is_null());
+    // With a tempo, both transports carry the same beat alignment.
+    let beat = json!({"motion": {"id": 1}, "count": 12, "bpm": 120.0});
+    let (status, rb) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/keyframes", Some(&beat)))
+            .await
+            .unwrap();
+    assert_eq!(status, 200, "{rb}");
+    let gb = client
+        .keyframes(pb::KeyframesRequest {
+            motion: Some(pb::MotionSource {
+                source: Some(pb::motion_source::Source::Id(1)),
+            }),
+            count: 12,
+            bpm: 120.0,
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let ba = gb.beat_alignment.expect("gRPC beat alignment");
+    let rba = &rb["beat_alignment"];
+    for (g, r) in [
+        (ba.original_music_to_motion, "original_music_to_motion"),
+        (ba.rebuilt_music_to_motion, "rebuilt_music_to_motion"),
+        (ba.original_motion_to_music, "original_motion_to_music"),
+        (ba.rebuilt_motion_to_music, "rebuilt_motion_to_music"),
+    ] {
+        assert!(
+            (g - rba[r].as_f64().unwrap()).abs() < 1e-12,
+            "{r}: {g} vs {rba}"
+        );
+    }
+    assert_eq!(
+        (gb.fps, gb.frames as u64),
+        (rb["fps"].as_f64().unwrap(), rb["frames"].as_u64().unwrap())
+    );
 
     // The learned in-betweener (the bundled one): the same rebuild over
     // both transports, the same keyframes as SLERP, a different and finite
@@ -527,6 +566,25 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         "REST and gRPC generate the same frames (worst {worst})"
     );
     assert!(m.rotations.iter().all(|x| x.is_finite()));
+    // top_p 0 means "no cut" on both transports (proto3 cannot tell 0 from
+    // absent, so REST reads it the same way).
+    let mut zero = greq.clone();
+    zero.sampling.as_mut().unwrap().top_p = 0.0;
+    let gz = client.generate(zero).await.unwrap().into_inner();
+    let zreq = json!({
+        "labels": {"genre": "BR"}, "frames": 24,
+        "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
+        "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
+        "sampling": {"temperature": 0.9, "top_k": 40, "top_p": 0.0, "seed": 7}
+    });
+    let (status, rz) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&zreq)))
+            .await
+            .unwrap();
+    assert_eq!(status, 200, "{rz}");
+    let zr = flat_rotations(&rz["output"]["rotations"]);
+    let gz = gz.output.unwrap().rotations;
+    assert!(gz.iter().zip(&zr).all(|(a, b)| (a - b).abs() < 1e-12));
 
     // Streaming gives the one-shot frames, one message each.
     let mut stream = client.generate_stream(greq).await.unwrap().into_inner();
@@ -664,9 +722,10 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .await
     .unwrap();
     for want in [
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 1",
+        // The prompt request and the top_p 0 one.
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 2",
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 2",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 1",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 2",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
     ] {
         assert!(metrics.contains(want), "missing {want} in\n{metrics}");
@@ -801,6 +860,7 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
         .unwrap()
         .into_inner();
     assert!(bvh_id.created && bvh_id.windows > 0, "{bvh_id:?}");
+    assert_eq!(bvh_id.status, "new", "as REST's status");
     let bvh_id = bvh_id.motion_id;
     let clip = choreo::motion::io::read_bytes(
         "clip.pkl",
@@ -848,9 +908,9 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
     assert_eq!(pkl_row["labels"]["session"], "t1");
     assert_eq!(pkl_row["format"], "aist");
     assert_eq!(got.0, 200, "{}", got.1);
-    assert_eq!(got.1["motion"]["format"], "json");
-    assert_eq!(got.1["motion"]["labels"]["take"], "inline");
-    let rot = got.1["data"]["rotations"].as_array().unwrap();
+    assert_eq!(got.1["summary"]["format"], "json");
+    assert_eq!(got.1["summary"]["labels"]["take"], "inline");
+    let rot = got.1["motion"]["rotations"].as_array().unwrap();
     assert_eq!(rot.len(), 300);
     let r0: Vec<[f64; 3]> = serde_json::from_value(rot[7].clone()).unwrap();
     assert_eq!(r0, clip.frame_rotations(7).to_vec(), "stored exactly");
@@ -987,6 +1047,24 @@ async fn motions_ingest_get_export_and_delete_over_both_transports() {
         .unwrap()
         .into_inner();
     assert_eq!(gi.steps, 20);
+    // The same names as REST: similarity and jitter, nested.
+    let (sim, jit) = (gi.similarity.unwrap(), gi.jitter.unwrap());
+    for (g, r) in [
+        (sim.o_t, &ir.1["similarity"]["o_t"]),
+        (sim.i_o, &ir.1["similarity"]["i_o"]),
+        (sim.i_t, &ir.1["similarity"]["i_t"]),
+        (jit.input, &ir.1["jitter"]["input"]),
+        (jit.output, &ir.1["jitter"]["output"]),
+        (jit.target, &ir.1["jitter"]["target"]),
+        (jit.band_swap, &ir.1["jitter"]["band_swap"]),
+    ] {
+        let r = r.as_f64().unwrap();
+        assert!((g - r).abs() <= 1e-9 * r.abs().max(1.0), "{g} vs {r}");
+    }
+    #[allow(deprecated)]
+    {
+        assert_eq!((gi.o_t, gi.jerk_output), (sim.o_t, jit.output));
+    }
     let rest_loss: Vec<f64> = serde_json::from_value(ir.1["loss"].clone()).unwrap();
     assert_eq!(gi.loss.len(), rest_loss.len());
     for (a, b) in gi.loss.iter().zip(&rest_loss) {

@@ -143,7 +143,7 @@ fn worst_vs_server(http: std::net::SocketAddr, path: &Path) -> f64 {
             let id = m["id"].as_i64().unwrap();
             let (_, _, body) =
                 support::exchange(http, "GET", &format!("/v1/motions/{id}"), None, None).unwrap();
-            (body["data"].clone(), body["skeleton"].clone())
+            (body["motion"].clone(), body["skeleton"].clone())
         };
         let data: MotionJson = serde_json::from_value(data).unwrap();
         let skeleton: Skeleton = serde_json::from_value(skeleton).unwrap();

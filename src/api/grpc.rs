@@ -350,8 +350,20 @@ impl Choreo for ChoreoGrpc {
             &who,
         )
         .await?;
+        #[allow(deprecated)]
         Ok(Response::new(pb::InterpolateResponse {
             output: Some(motion_pb(&m)),
+            similarity: Some(pb::Similarity {
+                o_t: rep.similarity.o_t,
+                i_o: rep.similarity.i_o,
+                i_t: rep.similarity.i_t,
+            }),
+            jitter: Some(pb::Jitter {
+                input: rep.jitter.input,
+                output: rep.jitter.output,
+                target: rep.jitter.target,
+                band_swap: rep.jitter.band_swap,
+            }),
             o_t: rep.similarity.o_t,
             i_o: rep.similarity.i_o,
             i_t: rep.similarity.i_t,
@@ -411,6 +423,16 @@ impl Choreo for ChoreoGrpc {
             mse: rep.mse,
             per_frame_error: rep.per_frame_error,
             output: Some(motion_pb(&m)),
+            frames: rep.frames as u32,
+            fps: rep.fps,
+            select: rep.select.name().to_string(),
+            inbetween: rep.inbetween,
+            beat_alignment: rep.beat_alignment.map(|b| pb::BeatAlignment {
+                original_music_to_motion: b.original_music_to_motion,
+                rebuilt_music_to_motion: b.rebuilt_music_to_motion,
+                original_motion_to_music: b.original_motion_to_music,
+                rebuilt_motion_to_music: b.rebuilt_motion_to_music,
+            }),
         }))
     }
 
@@ -464,12 +486,14 @@ impl Choreo for ChoreoGrpc {
                 created: true,
                 windows: windows as u32,
                 merged_labels,
+                status: "new".into(),
             },
             super::Stored::Existing { motion_id } => pb::IngestResponse {
                 motion_id,
                 created: false,
                 windows: 0,
                 merged_labels,
+                status: "existing".into(),
             },
         }))
     }

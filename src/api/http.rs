@@ -251,9 +251,10 @@ async fn get_motion(
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let (row, m) = super::get_motion(&s, motion_id(id)?, &who).await?;
+    // The same names as gRPC's GetMotionResponse: `summary` and `motion`.
     Ok(Json(json!({
-        "motion": summary(&row),
-        "data": MotionJson::from_motion(&m),
+        "summary": summary(&row),
+        "motion": MotionJson::from_motion(&m),
         "skeleton": super::lm::skeleton_json(&m.skeleton),
     })))
 }

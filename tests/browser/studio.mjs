@@ -176,8 +176,8 @@ try {
       const out = [];
       for (const m of list.slice(0, 3)) {
         const r = await (await fetch(`/v1/motions/${m.id}`)).json();
-        const frames = [0, Math.floor(r.data.rotations.length / 2), r.data.rotations.length - 1];
-        out.push({ id: m.id, frames, positions: frames.map((f) => Array.from(window.__studio.fk(r.skeleton, r.data.rotations[f], r.data.translation[f]))) });
+        const frames = [0, Math.floor(r.motion.rotations.length / 2), r.motion.rotations.length - 1];
+        out.push({ id: m.id, frames, positions: frames.map((f) => Array.from(window.__studio.fk(r.skeleton, r.motion.rotations[f], r.motion.translation[f]))) });
       }
       // A generated motion on the model's skeleton (as streamed frames are drawn).
       const model = await (await fetch("/v1/model")).json();

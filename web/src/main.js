@@ -63,7 +63,7 @@ const cache = new Map();
 async function loadMotion(id) {
   if (cache.has(id)) return cache.get(id);
   const m = await api.get(`/v1/motions/${id}`);
-  const full = { summary: m.motion, data: m.data, skeleton: m.skeleton, frames: motionPositions(m.skeleton, m.data) };
+  const full = { summary: m.summary, data: m.motion, skeleton: m.skeleton, frames: motionPositions(m.skeleton, m.motion) };
   cache.set(id, full);
   return full;
 }

@@ -183,20 +183,23 @@ pub struct SamplingJson {
 }
 
 impl SamplingJson {
+    /// `top_p` 0 means all (no nucleus cut), as over gRPC, whose proto3
+    /// field cannot tell 0 from absent.
     pub fn to_sampling(&self) -> crate::lm::Sampling {
         let r = crate::lm::Sampling::recommended(self.seed);
+        let top_p = self.top_p.map(|p| if p == 0.0 { 1.0 } else { p });
         let guidance = self.guidance.unwrap_or(r.guidance);
         match self.temperature {
             None => crate::lm::Sampling {
                 top_k: self.top_k.unwrap_or(r.top_k),
-                top_p: self.top_p.unwrap_or(r.top_p),
+                top_p: top_p.unwrap_or(r.top_p),
                 guidance,
                 ..r
             },
             Some(t) => crate::lm::Sampling {
                 temperature: t,
                 top_k: self.top_k.unwrap_or(0),
-                top_p: self.top_p.unwrap_or(1.0),
+                top_p: top_p.unwrap_or(1.0),
                 seed: self.seed,
                 guidance,
             },
