@@ -61,8 +61,8 @@ pub enum EvalCmd {
         #[arg(long, default_value = "exclude")]
         same_sequence: eval_q::SameSequence,
         /// all: every window is a query; held-out: only windows of the
-        /// trainer's held-out sequences (per folder, 10 % by name hash),
-        /// which a model trained on the same folder never saw.
+        /// trainer's held-out sequences (per --data folder, 10 % by name
+        /// hash), which a model trained on that corpus never saw.
         #[arg(long, default_value = "all")]
         queries: eval_q::Queries,
         /// A frame model folder, for the lm embedding.
@@ -205,9 +205,15 @@ fn eval_query(
         (None, true) => bail!("--embedding lm: give the frame model with --model DIR"),
         _ => None,
     };
-    let files = choreo::service::ingest::collect_files(&data);
+    // Each --data folder is one corpus (the trainer's held-out split is per corpus).
+    let (mut files, mut group) = (Vec::new(), Vec::new());
+    for (i, d) in data.iter().enumerate() {
+        let f = choreo::service::ingest::collect_files(std::slice::from_ref(d));
+        group.extend(std::iter::repeat_n(i, f.len()));
+        files.extend(f);
+    }
     let t = std::time::Instant::now();
-    let corpus = eval_q::build_corpus_with(&files, hop, &embeddings, lm.as_ref());
+    let corpus = eval_q::build_corpus_with(&files, &group, hop, &embeddings, lm.as_ref());
     if corpus.sequence.is_empty() {
         bail!(
             "no windows: none of {} files gave a 128-frame window",

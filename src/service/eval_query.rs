@@ -36,8 +36,9 @@ pub struct Corpus {
     pub sequences: usize,
     pub errors: Vec<String>,
     /// Per window: its sequence is in the trainer's held-out split (per
-    /// folder, the first 10 % of sequences ordered by the SHA-256 of their
-    /// name, [`crate::data::held_out_count`]): a model never trained on it.
+    /// corpus, i.e. per `--data` folder, the first 10 % of sequences
+    /// ordered by the SHA-256 of their name,
+    /// [`crate::data::held_out_count`]): a model never trained on it.
     pub held_out: Vec<bool>,
 }
 
@@ -65,13 +66,16 @@ impl std::str::FromStr for Queries {
 }
 
 pub fn build_corpus(files: &[PathBuf], hop: usize, embeddings: &[Embedding]) -> Corpus {
-    build_corpus_with(files, hop, embeddings, None)
+    build_corpus_with(files, &vec![0; files.len()], hop, embeddings, None)
 }
 
 /// [`build_corpus`], with the `lm` embedding when a frame model is given
 /// (asked for without one, `lm` is left out and said in `errors`).
+/// `corpus[i]` is file `i`'s corpus (the `--data` folder it came from),
+/// for the held-out split.
 pub fn build_corpus_with(
     files: &[PathBuf],
+    corpus: &[usize],
     hop: usize,
     embeddings: &[Embedding],
     lm: Option<&LmEmbedder>,
@@ -81,10 +85,10 @@ pub fn build_corpus_with(
     let mut sequence = Vec::new();
     let mut labels = Vec::new();
     let mut errors = Vec::new();
-    // Per folder: (name hash, sequence) for the held-out split.
-    let mut by_folder: BTreeMap<PathBuf, Vec<(String, usize)>> = BTreeMap::new();
+    // Per corpus: (name hash, sequence) for the held-out split.
+    let mut by_corpus: BTreeMap<usize, Vec<(String, usize)>> = BTreeMap::new();
     let mut seq = 0;
-    for f in files {
+    for (f, &group) in files.iter().zip(corpus) {
         let loaded = match read_path(f, &ReadOptions::default()) {
             Ok(l) => l,
             Err(e) => {
@@ -109,14 +113,11 @@ pub fn build_corpus_with(
             .iter()
             .map(|b| format!("{b:02x}"))
             .collect();
-        by_folder
-            .entry(f.parent().map(|p| p.to_path_buf()).unwrap_or_default())
-            .or_default()
-            .push((hash, seq));
+        by_corpus.entry(group).or_default().push((hash, seq));
         seq += 1;
     }
     let mut held_seq = vec![false; seq];
-    for list in by_folder.values_mut() {
+    for list in by_corpus.values_mut() {
         list.sort();
         for &(_, s) in list
             .iter()
