@@ -463,9 +463,28 @@ mod tests {
             vectors: HashMap::new(),
             sequences: 3,
             errors: Vec::new(),
+            held_out: vec![false, false, true, true],
         };
         let m = majority(&corpus, &["style".to_string()]);
         assert_eq!(m[0].2, 3);
         assert!((m[0].1 - 2.0 / 3.0).abs() < 1e-12);
+        // Over the held-out queries only: the one labelled window there.
+        let h = majority_of(&corpus, &["style".to_string()], Queries::HeldOut);
+        assert_eq!((h[0].1, h[0].2), (1.0, 1));
+    }
+
+    #[test]
+    fn only_marked_windows_are_queries_but_all_are_neighbours() {
+        let v = vec![vec![1.0, 0.0], vec![1.0, 0.01], vec![0.0, 1.0]];
+        let (cos, euc) = knn_select(
+            &v,
+            &[0, 1, 2],
+            2,
+            SameSequence::Exclude,
+            Some(&[false, true, false]),
+        );
+        assert!(cos[0].is_empty() && cos[2].is_empty() && euc[0].is_empty());
+        // The held-out query's nearest neighbour is a non-query window.
+        assert_eq!(cos[1][0].id, 0);
     }
 }

@@ -123,14 +123,19 @@ pub fn read_amass_npz(file: &str, bytes: &[u8]) -> Result<Motion, MotionError> {
     Motion::new(file, fps, sk, out_trans, rotations, l)
 }
 
-/// Write an SMPL-24 motion as an AMASS-style `.npz` (`poses` (N,156) with the
-/// hands at rest, `trans`, `mocap_framerate`, z up).
+/// Write an SMPL motion as an AMASS-style `.npz` (`poses` (N,156) with the
+/// hands at rest, `trans`, `mocap_framerate`, z up). An SMPL-13 motion
+/// (generated, or reduced with `convert --joints smpl13`) keeps its 13
+/// joints in their SMPL slots and the other joints at rest.
 pub fn write_amass_npz(m: &Motion) -> Result<Vec<u8>, MotionError> {
+    if m.skeleton.kind == "smpl13" {
+        return write_amass_npz(&m.smpl13_to_smpl24()?);
+    }
     if m.skeleton.kind != "smpl24" {
         return Err(MotionError::invalid(
             &m.name,
             "skeleton",
-            "AMASS output needs an SMPL-24 motion",
+            "AMASS output needs an SMPL-24 or SMPL-13 motion (convert --joints smpl24 retargets others)",
         ));
     }
     let n = m.frames();
@@ -191,4 +196,51 @@ pub(crate) fn write_npz(name: &str, arrays: &[(&str, NdArray)]) -> Result<Vec<u8
             .map_err(|e| MotionError::invalid(name, "npz", e.to_string()))?;
     }
     Ok(out.into_inner())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::motion::skeleton::SMPL13_FROM_24;
+
+    /// An SMPL-13 motion writes as AMASS npz: its joints in their SMPL
+    /// slots, the others at rest, the root path kept.
+    #[test]
+    fn smpl13_writes_as_amass_npz() {
+        let rots: Vec<[f64; 3]> = (0..30 * 24)
+            .map(|i| {
+                let (f, j) = ((i / 24) as f64, (i % 24) as f64);
+                [0.01 * j, 0.2 * (0.3 * f + j).sin(), -0.1]
+            })
+            .collect();
+        let trans = (0..30).map(|f| [0.02 * f as f64, 0.9, 0.1]).collect();
+        let m24 = Motion::new(
+            "x",
+            30.0,
+            crate::motion::Skeleton::smpl24(),
+            trans,
+            rots,
+            Default::default(),
+        )
+        .unwrap();
+        let m13 = m24.to_smpl13().unwrap();
+        let back = read_amass_npz("x.npz", &write_amass_npz(&m13).unwrap()).unwrap();
+        assert_eq!((back.skeleton.kind.as_str(), back.frames()), ("smpl24", 30));
+        for f in 0..30 {
+            for (i, &k) in SMPL13_FROM_24.iter().enumerate() {
+                let (a, b) = (m13.rot(f, i), back.rot(f, k));
+                assert!(
+                    (0..3).all(|c| (a[c] - b[c]).abs() < 1e-9),
+                    "{f} {k}: {a:?} {b:?}"
+                );
+            }
+            for (a, b) in m13.trans[f].iter().zip(&back.trans[f]) {
+                assert!((a - b).abs() < 1e-9);
+            }
+        }
+        let kept: std::collections::HashSet<usize> = SMPL13_FROM_24.iter().copied().collect();
+        for k in (0..24).filter(|k| !kept.contains(k)) {
+            assert!(back.rot(10, k).iter().all(|x| x.abs() < 1e-12), "{k}");
+        }
+    }
 }
