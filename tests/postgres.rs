@@ -78,6 +78,22 @@ async fn exercise(store: &Store, files: &[std::path::PathBuf]) -> serde_json::Va
             "first_motion": first_motion.len(),
         }));
     }
+    // Adding vectors of a kind keeps any a window already has (the lm
+    // backfill's write): the second add changes nothing.
+    let lm = choreo::features::Embedding::Lm;
+    let (w0, w1) = (windows[0].0, windows[1].0);
+    store
+        .add_embeddings(lm, &[(w0, vec![1.0, 2.0])])
+        .await
+        .unwrap();
+    store
+        .add_embeddings(lm, &[(w0, vec![9.0, 9.0]), (w1, vec![3.0, 4.0])])
+        .await
+        .unwrap();
+    let mut added = store.embeddings(lm).await.unwrap();
+    added.sort_by_key(|(id, _)| *id);
+    assert_eq!(added, vec![(w0, vec![1.0, 2.0]), (w1, vec![3.0, 4.0])]);
+    embeddings.push(json!({"kind": "lm", "added": added}));
     let range = store.channel_range(ids[0], 10, 3).await.unwrap().unwrap();
     store.create_collection("films").await.unwrap();
     store

@@ -265,11 +265,14 @@ impl FrameSession {
         Ok(out)
     }
 
-    /// The global states along whole frames of value tokens (`slots`
-    /// each, at most the context), unconditioned, pooled: the mean state
-    /// and the mean absolute change of the state from frame to frame,
-    /// concatenated (`2 × d_global`). The search embedding `lm`.
-    pub fn pooled_states(&self, values: &[u32]) -> Result<Vec<f32>, LmError> {
+    /// Runs the global transformer, unconditioned, along whole frames of
+    /// value tokens (`slots` each, at most the context) and hands each
+    /// frame's state and class logits to `visit`. Returns the frame count.
+    fn walk_frames(
+        &self,
+        values: &[u32],
+        mut visit: impl FnMut(Vec<f32>, Vec<Vec<f32>>),
+    ) -> Result<usize, LmError> {
         let c = self.config();
         let s = c.slots;
         let n = (values.len() / s).min(c.max_frames);
@@ -280,24 +283,38 @@ impl FrameSession {
         let (mut gs, _) = self.states()?;
         let mut cache = self.new_global_cache();
         self.global_step(&mut gs, &mut cache, &cond, None)?;
-        let d = c.d_global;
-        let mut out = vec![0f32; 2 * d];
-        let mut last: Option<Vec<f32>> = None;
         for f in 0..n {
             let frame = &values[f * s..(f + 1) * s];
             let p1 = (f > 0).then(|| &values[(f - 1) * s..f * s]);
-            let (h, _) = self.global_step(&mut gs, &mut cache, &cond, Some((frame, p1)))?;
-            for (o, x) in out[..d].iter_mut().zip(&h) {
-                *o += x / n as f32;
+            let (h, cls) = self.global_step(&mut gs, &mut cache, &cond, Some((frame, p1)))?;
+            visit(h, cls);
+        }
+        Ok(n)
+    }
+
+    /// The global states along whole frames of value tokens, pooled: the
+    /// mean state and the mean absolute change of the state from frame to
+    /// frame, concatenated (`2 × d_global`). The search embedding `lm`.
+    pub fn pooled_states(&self, values: &[u32]) -> Result<Vec<f32>, LmError> {
+        let d = self.config().d_global;
+        let mut sum = vec![0f32; 2 * d];
+        let mut last: Option<Vec<f32>> = None;
+        let n = self.walk_frames(values, |h, _| {
+            for (o, x) in sum[..d].iter_mut().zip(&h) {
+                *o += x;
             }
             if let Some(prev) = &last {
-                for ((o, x), p) in out[d..].iter_mut().zip(&h).zip(prev) {
-                    *o += (x - p).abs() / (n - 1) as f32;
+                for ((o, x), p) in sum[d..].iter_mut().zip(&h).zip(prev) {
+                    *o += (x - p).abs();
                 }
             }
             last = Some(h);
-        }
-        Ok(out)
+        })?;
+        sum[..d].iter_mut().for_each(|x| *x /= n as f32);
+        sum[d..]
+            .iter_mut()
+            .for_each(|x| *x /= (n - 1).max(1) as f32);
+        Ok(sum)
     }
 
     /// Class logits per kind (manifest order) of whole frames of value
@@ -305,25 +322,16 @@ impl FrameSession {
     /// step's class logits (= the head on the mean state).
     pub fn classify(&self, values: &[u32]) -> Result<Vec<Vec<f32>>, LmError> {
         let c = self.config();
-        let s = c.slots;
-        let n = (values.len() / s).min(c.max_frames);
-        if n == 0 {
-            return Err(LmError::invalid("request", "motion", "no whole frame"));
-        }
-        let cond = self.cond(&Labels::new())?;
-        let (mut gs, _) = self.states()?;
-        let mut cache = self.new_global_cache();
-        self.global_step(&mut gs, &mut cache, &cond, None)?;
         let mut sums: Vec<Vec<f32>> = c.classes.iter().map(|(_, v)| vec![0.0; v.len()]).collect();
-        for f in 0..n {
-            let frame = &values[f * s..(f + 1) * s];
-            let p1 = (f > 0).then(|| &values[(f - 1) * s..f * s]);
-            let (_, cls) = self.global_step(&mut gs, &mut cache, &cond, Some((frame, p1)))?;
+        let n = self.walk_frames(values, |_, cls| {
             for (acc, x) in sums.iter_mut().zip(cls) {
                 for (a, b) in acc.iter_mut().zip(x) {
-                    *a += b / n as f32;
+                    *a += b;
                 }
             }
+        })?;
+        for acc in sums.iter_mut() {
+            acc.iter_mut().for_each(|a| *a /= n as f32);
         }
         Ok(sums)
     }

@@ -291,7 +291,32 @@ pub(super) async fn insert_embedding(
     kind: Embedding,
     v: &[f32],
 ) -> std::result::Result<(), sqlx::Error> {
-    sqlx::query("INSERT INTO embeddings (window_id, kind, dim, vector) VALUES ($1, $2, $3, $4)")
+    insert_embedding_sql(tx, window_id, kind, v, false).await
+}
+
+/// [`insert_embedding`], keeping a vector the window already has.
+pub(super) async fn insert_embedding_if_new(
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
+    window_id: i64,
+    kind: Embedding,
+    v: &[f32],
+) -> std::result::Result<(), sqlx::Error> {
+    insert_embedding_sql(tx, window_id, kind, v, true).await
+}
+
+async fn insert_embedding_sql(
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
+    window_id: i64,
+    kind: Embedding,
+    v: &[f32],
+    keep_existing: bool,
+) -> std::result::Result<(), sqlx::Error> {
+    let sql = if keep_existing {
+        "INSERT INTO embeddings (window_id, kind, dim, vector) VALUES ($1, $2, $3, $4) ON CONFLICT (kind, window_id) DO NOTHING"
+    } else {
+        "INSERT INTO embeddings (window_id, kind, dim, vector) VALUES ($1, $2, $3, $4)"
+    };
+    sqlx::query(sql)
         .bind(window_id)
         .bind(kind.name())
         .bind(v.len() as i64)

@@ -1,7 +1,7 @@
 //! Windows, their embeddings and the motions' channel matrices: what the
 //! search indexes are built from and queries read.
 
-use super::motions::{bump_generation, insert_embedding};
+use super::motions::{bump_generation, insert_embedding, insert_embedding_if_new};
 use super::*;
 
 impl Store {
@@ -177,17 +177,9 @@ impl Store {
     pub async fn add_embeddings(&self, kind: Embedding, rows: &[(i64, Vec<f32>)]) -> Result<()> {
         let mut tx = self.pool.begin().await.map_err(|e| self.db(e))?;
         for (id, v) in rows {
-            sqlx::query(
-                "INSERT INTO embeddings (window_id, kind, dim, vector) VALUES ($1, $2, $3, $4) \
-                 ON CONFLICT (kind, window_id) DO NOTHING",
-            )
-            .bind(*id)
-            .bind(kind.name())
-            .bind(v.len() as i64)
-            .bind(f32s_to_blob(v))
-            .execute(&mut *tx)
-            .await
-            .map_err(|e| self.db(e))?;
+            insert_embedding_if_new(&mut tx, *id, kind, v)
+                .await
+                .map_err(|e| self.db(e))?;
         }
         bump_generation(&mut tx).await.map_err(|e| self.db(e))?;
         tx.commit().await.map_err(|e| self.db(e))?;
