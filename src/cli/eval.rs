@@ -68,6 +68,13 @@ pub enum EvalCmd {
         /// A frame model folder, for the lm embedding.
         #[arg(long)]
         model: Option<PathBuf>,
+        /// Sequence whitening with this many directions (0 = off): each
+        /// embedding is mapped onto the directions that separate sequences
+        /// from one another (no labels used), fitted on the training
+        /// sequences only; needs --queries held-out. Embeddings over 2,048
+        /// values (STFT) are left out.
+        #[arg(long, default_value_t = 0)]
+        whiten: usize,
         #[arg(long)]
         json: bool,
     },
@@ -131,6 +138,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             same_sequence,
             queries,
             model,
+            whiten,
             json,
         } => eval_query(
             data,
@@ -138,7 +146,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             embedding,
             hop,
             k,
-            (same_sequence, queries),
+            (same_sequence, queries, whiten),
             model,
             json,
         ),
@@ -177,12 +185,15 @@ fn eval_query(
     embedding: Vec<String>,
     hop: usize,
     k: usize,
-    (same, queries): (eval_q::SameSequence, eval_q::Queries),
+    (same, queries, whiten): (eval_q::SameSequence, eval_q::Queries, usize),
     model: Option<PathBuf>,
     json: bool,
 ) -> Result<()> {
     if data.is_empty() {
         bail!("--data: give at least one folder or file");
+    }
+    if whiten > 0 && queries != eval_q::Queries::HeldOut {
+        bail!("--whiten: fitted on the training sequences, so it needs --queries held-out");
     }
     let embeddings: Vec<Embedding> = if embedding.is_empty() {
         Embedding::ALL.to_vec()
@@ -213,7 +224,10 @@ fn eval_query(
         files.extend(f);
     }
     let t = std::time::Instant::now();
-    let corpus = eval_q::build_corpus_with(&files, &group, hop, &embeddings, lm.as_ref());
+    let mut corpus = eval_q::build_corpus_with(&files, &group, hop, &embeddings, lm.as_ref());
+    if whiten > 0 {
+        eval_q::whiten(&mut corpus, whiten, 1e-2);
+    }
     if corpus.sequence.is_empty() {
         bail!(
             "no windows: none of {} files gave a 128-frame window",

@@ -20,6 +20,7 @@ pub mod lda;
 pub mod pca;
 pub mod pose;
 pub mod project;
+pub mod whiten;
 
 use crate::motion::retarget::{retarget_to_smpl13, JointMap};
 use crate::motion::{Motion, MotionError};

@@ -164,6 +164,50 @@ pub fn build_corpus_with(
     }
 }
 
+/// Widest embedding [`whiten`] maps (its within-sequence scatter is
+/// `d × d`).
+pub const MAX_WHITEN_DIM: usize = 2048;
+
+/// Replaces every embedding's vectors by their sequence whitening
+/// ([`crate::features::whiten`]) with `k` directions, fitted on the windows
+/// of the training (not held-out) sequences only; embeddings wider than
+/// [`MAX_WHITEN_DIM`], or that cannot be fitted, are removed and said in
+/// `errors`.
+pub fn whiten(corpus: &mut Corpus, k: usize, shrink: f64) {
+    let kinds: Vec<Embedding> = corpus.vectors.keys().copied().collect();
+    for e in kinds {
+        let v = &corpus.vectors[&e];
+        let d = v.first().map_or(0, |x| x.len());
+        if d > MAX_WHITEN_DIM {
+            corpus.errors.push(format!(
+                "{}: {d} values, too wide to whiten (at most {MAX_WHITEN_DIM}); left out",
+                e.name()
+            ));
+            corpus.vectors.remove(&e);
+            continue;
+        }
+        let (fit, seq): (Vec<&[f32]>, Vec<usize>) = v
+            .iter()
+            .zip(&corpus.sequence)
+            .zip(&corpus.held_out)
+            .filter(|(_, held)| !**held)
+            .map(|((x, s), _)| (x.as_slice(), *s))
+            .unzip();
+        match crate::features::whiten::Whitening::fit(&fit, &seq, k, shrink) {
+            Some(w) => {
+                let mapped = v.iter().map(|x| w.apply(x)).collect();
+                corpus.vectors.insert(e, mapped);
+            }
+            None => {
+                corpus
+                    .errors
+                    .push(format!("{}: could not be whitened; left out", e.name()));
+                corpus.vectors.remove(&e);
+            }
+        }
+    }
+}
+
 /// Top-k neighbours of every vector under both metrics, excluding the same
 /// sequence. Dot products are computed once and shared by the two metrics;
 /// rows are split across threads.
