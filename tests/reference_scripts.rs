@@ -52,6 +52,13 @@ fn rotations_agree_with_scipy() {
 }
 
 #[test]
+fn sequence_whitening_agrees_with_scipy() {
+    if python_with("numpy, scipy") {
+        run_script("check_whiten.py", None);
+    }
+}
+
+#[test]
 fn gltf_output_reads_in_pygltflib() {
     if python_with("numpy, pygltflib") {
         run_script("check_gltf.py", Some("aistpp"));

@@ -32,11 +32,36 @@ pub enum DevCmd {
     /// Read `{"quats": [[w,x,y,z]...], "orders": ["ZXY", "xyz", ...]}` on stdin;
     /// print every conversion as JSON.
     Rotations,
+    /// Read `{"vectors": [[...]...], "sequence": [...]}` on stdin; print the
+    /// sequence whitening fitted on them (`mean`, `directions`, `ratios`).
+    Whiten {
+        #[arg(long, default_value_t = 8)]
+        k: usize,
+        #[arg(long, default_value_t = 0.01)]
+        shrink: f64,
+    },
 }
 
 pub fn run(cmd: DevCmd) -> Result<()> {
     match cmd {
         DevCmd::Rotations => dev_rotations(),
+        DevCmd::Whiten { k, shrink } => {
+            let mut s = String::new();
+            std::io::stdin().read_to_string(&mut s)?;
+            let v: serde_json::Value = serde_json::from_str(&s)?;
+            let vectors: Vec<Vec<f32>> =
+                serde_json::from_value(v["vectors"].clone()).context("vectors")?;
+            let sequence: Vec<usize> =
+                serde_json::from_value(v["sequence"].clone()).context("sequence")?;
+            let refs: Vec<&[f32]> = vectors.iter().map(|x| x.as_slice()).collect();
+            let w = choreo::features::whiten::Whitening::fit(&refs, &sequence, k, shrink)
+                .context("not enough sequences, or vectors of unequal length")?;
+            println!(
+                "{}",
+                json!({"mean": w.mean, "directions": w.directions, "ratios": w.ratios})
+            );
+            Ok(())
+        }
         DevCmd::Audio { music, out } => {
             let a = choreo::audio::read(&music)?;
             let t = std::time::Instant::now();
