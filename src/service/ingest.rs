@@ -145,7 +145,11 @@ pub fn prepare_with(
         .into_iter()
         .map(|s| {
             let w = window(&ch, s);
-            NewWindow {
+            let lm = lm
+                .map(|emb| emb.window(&w))
+                .transpose()
+                .map_err(|e| MotionError::invalid(file, "lm", e.to_string()))?;
+            Ok(NewWindow {
                 start_frame: s,
                 frames: WINDOW,
                 embeddings: [
@@ -155,19 +159,11 @@ pub fn prepare_with(
                 ]
                 .into_iter()
                 .chain(pca.map(|p| (Embedding::Pca, p.project_window(&w))))
+                .chain(lm.map(|v| (Embedding::Lm, v)))
                 .collect(),
-            }
+            })
         })
-        .collect::<Vec<_>>();
-    let mut windows = windows;
-    if let Some(emb) = lm {
-        for w in windows.iter_mut() {
-            let v = emb
-                .window(&window(&ch, w.start_frame))
-                .map_err(|e| MotionError::invalid(file, "lm", e.to_string()))?;
-            w.embeddings.push((Embedding::Lm, v));
-        }
-    }
+        .collect::<Result<Vec<_>, MotionError>>()?;
     Ok(NewMotion {
         source_path: file.to_string(),
         content_hash: hash,

@@ -272,6 +272,13 @@ impl Searcher {
             .model("lm")
             .await?
             .is_some_and(|(_, body)| body == emb.fingerprint());
+        // The usual case (every window already embedded by this model)
+        // costs two counts, not a read of every vector.
+        let (_, nwin) = self.store.counts().await?;
+        if current && self.store.count_embeddings(Embedding::Lm).await? == nwin {
+            self.lm_ready.store(true, Ordering::Release);
+            return Ok(0);
+        }
         let have: std::collections::HashSet<i64> = if current {
             self.store
                 .embeddings(Embedding::Lm)
