@@ -28,12 +28,14 @@
 pub mod api;
 pub mod audio;
 pub mod data;
+pub mod eval;
 pub mod features;
 pub mod index;
 pub mod keyframes;
 pub mod lm;
 pub mod motion;
 pub mod plot;
+pub mod search;
 pub mod server;
 pub mod service;
 pub mod store;

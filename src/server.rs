@@ -3,7 +3,7 @@
 
 use crate::api::{grpc, http, AppState};
 use crate::index::hnsw::HnswParams;
-use crate::service::query::Searcher;
+use crate::search::Searcher;
 use crate::store::Store;
 use anyhow::{Context, Result};
 use std::net::SocketAddr;
@@ -206,7 +206,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     tracing::info!("store: {}", store.label());
     if !cfg.ingest.is_empty() {
         let r =
-            crate::service::ingest::ingest(&store, &cfg.ingest, &Default::default(), &|_, _, _| {})
+            crate::search::ingest::ingest(&store, &cfg.ingest, &Default::default(), &|_, _, _| {})
                 .await?;
         tracing::info!(
             "ingested {} motions ({} windows), {} already stored, {} unreadable",

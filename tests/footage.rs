@@ -383,7 +383,7 @@ async fn footage_ingested_with_video_is_found_from_mocap_and_finds_it() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_store_without_pose_embeddings_gets_them_on_open() {
     use choreo::features::Embedding;
-    use choreo::service::ingest::{ingest, IngestOptions};
+    use choreo::search::ingest::{ingest, IngestOptions};
     let Some(aist) = require("aistpp/motions") else {
         return;
     };
@@ -404,7 +404,7 @@ async fn a_store_without_pose_embeddings_gets_them_on_open() {
         .await
         .unwrap();
     assert_eq!(store.count_embeddings(Embedding::Pose).await.unwrap(), 0);
-    let searcher = choreo::service::query::Searcher::open(store.clone(), Default::default())
+    let searcher = choreo::search::Searcher::open(store.clone(), Default::default())
         .await
         .unwrap();
     drop(searcher);

@@ -280,7 +280,7 @@ fn delta_baseline_is_exact_on_a_hand_made_sequence() {
 
 #[test]
 fn eval_generate_reports_every_metric_on_real_held_out_clips() {
-    use choreo::service::eval_generate::{eval_generate, GenOptions};
+    use choreo::eval::generate::{eval_generate, GenOptions};
     let Some(dir) = choreo::data::require("aistpp-vrm/motions") else {
         return;
     };

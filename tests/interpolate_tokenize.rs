@@ -183,7 +183,7 @@ fn tokenizer_tables_on_aist_samples_follow_the_thesis() {
     let Some(dir) = require("aistpp/motions") else {
         return;
     };
-    let c = choreo::service::eval_tokenize::eval_corpus(&dir).unwrap();
+    let c = choreo::eval::tokenize::eval_corpus(&dir).unwrap();
     let t = &c.tables;
     assert_eq!(c.files, 4);
     // Uniform 360: every joint within √3 half-degrees.

@@ -9,7 +9,7 @@
 
 mod support;
 
-use choreo::service::ingest::{ingest_bytes, IngestOptions, Stored};
+use choreo::search::ingest::{ingest_bytes, IngestOptions, Stored};
 use choreo::store::{Location, Store, StoreError};
 use serde_json::json;
 use std::time::{Duration, Instant};

@@ -7,8 +7,8 @@ use choreo::index::hnsw::HnswParams;
 use choreo::index::Metric;
 use choreo::motion::io::amass::write_amass_npz;
 use choreo::motion::{Labels, Motion, Skeleton};
-use choreo::service::ingest::{ingest, IngestOptions};
-use choreo::service::query::{QueryRequest, Searcher};
+use choreo::search::ingest::{ingest, IngestOptions};
+use choreo::search::{QueryRequest, Searcher};
 use choreo::store::Store;
 use std::path::Path;
 
@@ -240,8 +240,8 @@ async fn ingest_query_filters_staleness_and_errors() {
 /// are (no rebuild).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn live_writes_reach_queries_at_once() {
-    use choreo::service::ingest::Stored;
-    use choreo::service::query::QuerySource;
+    use choreo::search::ingest::Stored;
+    use choreo::search::QuerySource;
     use std::sync::Arc;
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("live.db");
@@ -306,7 +306,7 @@ async fn live_writes_reach_queries_at_once() {
     gone.source = QuerySource::Stored(9999);
     assert!(matches!(
         s.query(gone).await,
-        Err(choreo::service::query::QueryError::NotFound(9999))
+        Err(choreo::search::QueryError::NotFound(9999))
     ));
     // The same bytes again with labels: nothing stored, labels merged.
     let tagged = IngestOptions {
@@ -375,7 +375,7 @@ async fn live_writes_reach_queries_at_once() {
     // dumps saved at the store's generation; a new searcher loads them and
     // answers the same.
     s.maintain().await.unwrap();
-    assert!(!choreo::service::ingest::pca_due(&store).await.unwrap());
+    assert!(!choreo::search::ingest::pca_due(&store).await.unwrap());
     let generation = store.generation().await.unwrap();
     let probe = clip("burst3", 300, 0.7 + 0.4 * 3.0, 0.3, "calm");
     let before = s
@@ -431,7 +431,7 @@ async fn live_writes_reach_queries_at_once() {
 async fn lm_embedding_from_the_frame_model() {
     use choreo::lm::embed::LmEmbedder;
     use choreo::lm::model::MotionModel;
-    use choreo::service::ingest::Stored;
+    use choreo::search::ingest::Stored;
     use std::sync::Arc;
     let model_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default");
     let model = MotionModel::load(&model_dir).unwrap();

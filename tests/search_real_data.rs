@@ -90,7 +90,7 @@ async fn hnsw_recall_on_the_real_corpus() {
     let dir = tempfile::tempdir().unwrap();
     let store = Store::open(&dir.path().join("r.db")).await.unwrap();
     let noop = |_: usize, _: usize, _: &str| {};
-    choreo::service::ingest::ingest(&store, &[root], &Default::default(), &noop)
+    choreo::search::ingest::ingest(&store, &[root], &Default::default(), &noop)
         .await
         .unwrap();
     for e in Embedding::ALL {

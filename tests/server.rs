@@ -1480,7 +1480,7 @@ async fn kill_9_during_api_ingest_loses_nothing_committed() {
             "motion {id}"
         );
     }
-    let searcher = choreo::service::query::Searcher::open(store.clone(), Default::default())
+    let searcher = choreo::search::Searcher::open(store.clone(), Default::default())
         .await
         .unwrap();
     for e in [

@@ -7,8 +7,8 @@ use crate::motion::io::bvh::{write_bvh, BvhWriteOptions};
 use crate::motion::io::json::write_json;
 use crate::motion::io::ReadOptions;
 use crate::motion::{Labels, Motion};
-use crate::service::ingest::{load_motion, load_source, parse_source, IngestOptions, Stored};
-use crate::service::query::IngestOutcome;
+use crate::search::ingest::{load_motion, load_source, parse_source, IngestOptions, Stored};
+use crate::search::IngestOutcome;
 use crate::store::{MotionRow, VideoLink};
 
 /// A video link as a request gives it: a path or URL of at most 2,048
@@ -52,8 +52,7 @@ pub async fn ingest(
 ) -> Result<IngestOutcome, ApiError> {
     // The collection must exist and be the writer's: an unknown one and one
     // not granted get the same answer, so that nothing leaks.
-    let collection =
-        collection.unwrap_or_else(|| crate::service::ingest::DEFAULT_COLLECTION.into());
+    let collection = collection.unwrap_or_else(|| crate::search::ingest::DEFAULT_COLLECTION.into());
     if !who.sees(&collection)
         || !state
             .store

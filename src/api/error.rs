@@ -3,8 +3,8 @@
 //! how the layers' errors (motion, query, store, load) map onto it.
 
 use crate::motion::MotionError;
-use crate::service::ingest::LoadError;
-use crate::service::query::QueryError;
+use crate::search::ingest::LoadError;
+use crate::search::QueryError;
 use crate::store::StoreError;
 
 /// Errors every endpoint can answer with.

@@ -21,13 +21,13 @@ use crate::index::Metric;
 use crate::motion::io::json::{MotionJson, MotionParts};
 use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::Motion;
-use crate::service::ingest::load_motion;
-pub use crate::service::ingest::Stored;
+use crate::search::ingest::load_motion;
+pub use crate::search::ingest::Stored;
+use crate::search::{QueryHit, QueryRequest, QuerySource, Searcher};
 use crate::service::interpolate::{interpolate_motions, with_channels, InterpolateReport};
 use crate::service::keyframes::{
     reconstruct, Inbetween, KeyframeReport, KeyframeRequest, LearnedModel, Music, Select,
 };
-use crate::service::query::{QueryHit, QueryRequest, QuerySource, Searcher};
 use crate::store::Store;
 pub use archive::*;
 pub use error::ApiError;

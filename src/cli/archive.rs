@@ -7,8 +7,8 @@ use choreo::features::Embedding;
 use choreo::index::hnsw::HnswParams;
 use choreo::index::Metric;
 use choreo::motion::io::{self};
-use choreo::service::ingest::IngestOptions;
-use choreo::service::query::{QueryRequest, Searcher};
+use choreo::search::ingest::IngestOptions;
+use choreo::search::{QueryRequest, Searcher};
 use choreo::store::Store;
 use serde_json::json;
 use std::path::PathBuf;
@@ -198,7 +198,7 @@ async fn ingest(
         bail!("--collection: 1 to 64 letters, digits and - _ . only");
     }
     store.create_collection(&opts.collection).await?;
-    let files = choreo::service::ingest::collect_files_with(&paths, &opts.read);
+    let files = choreo::search::ingest::collect_files_with(&paths, &opts.read);
     let bar = indicatif::ProgressBar::new(files.len() as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template(
@@ -210,7 +210,7 @@ async fn ingest(
         bar.set_position(done as u64);
         bar.set_message(file.rsplit('/').next().unwrap_or(file).to_string());
     };
-    let report = choreo::service::ingest::ingest(&store, &paths, &opts, &progress).await?;
+    let report = choreo::search::ingest::ingest(&store, &paths, &opts, &progress).await?;
     bar.finish_and_clear();
     let lm_windows = match lm {
         Some(emb) => {

@@ -183,7 +183,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
 fn bench_embed(data: &[PathBuf], dump: Option<&std::path::Path>) -> Result<()> {
     use choreo::features::*;
     use std::time::Instant;
-    let files = choreo::service::ingest::collect_files(data);
+    let files = choreo::search::ingest::collect_files(data);
     let mut wins = Vec::new();
     for f in &files {
         let c = channels72(&io::read_path(f, &ReadOptions::default())?.motion)?;

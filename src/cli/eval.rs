@@ -2,8 +2,8 @@
 
 use super::args::*;
 use anyhow::{bail, Context, Result};
+use choreo::eval::query as eval_q;
 use choreo::features::Embedding;
-use choreo::service::eval_query as eval_q;
 use clap::Subcommand;
 use serde_json::json;
 use std::path::PathBuf;
@@ -219,7 +219,7 @@ fn eval_query(
     // Each --data folder is one corpus (the trainer's held-out split is per corpus).
     let (mut files, mut group) = (Vec::new(), Vec::new());
     for (i, d) in data.iter().enumerate() {
-        let f = choreo::service::ingest::collect_files(std::slice::from_ref(d));
+        let f = choreo::search::ingest::collect_files(std::slice::from_ref(d));
         group.extend(std::iter::repeat_n(i, f.len()));
         files.extend(f);
     }
@@ -296,7 +296,7 @@ fn eval_query(
 }
 
 fn eval_tokenize(data: Vec<PathBuf>, plot: Option<PathBuf>, json: bool) -> Result<()> {
-    use choreo::service::eval_tokenize as et;
+    use choreo::eval::tokenize as et;
     use choreo::tokenize::eval::CodecReport;
     let t = std::time::Instant::now();
     let corpora = data
@@ -380,7 +380,7 @@ fn eval_interpolate(
     json: bool,
 ) -> Result<()> {
     use choreo::features::interpolate::InterpolateOptions;
-    let files = choreo::service::ingest::collect_files(&data);
+    let files = choreo::search::ingest::collect_files(&data);
     let base = InterpolateOptions {
         objective: Embedding::Dct,
         band,
@@ -388,7 +388,7 @@ fn eval_interpolate(
         learning_rate: lr,
     };
     let t = std::time::Instant::now();
-    let r = choreo::service::interpolate::eval_interpolate(
+    let r = choreo::eval::interpolate::eval_interpolate(
         &files,
         pairs,
         seed,
@@ -468,9 +468,9 @@ fn eval_interpolate(
 }
 
 fn eval_keyframes(data: Vec<PathBuf>, bpm: f64, counts: Vec<usize>, json: bool) -> Result<()> {
-    let files = choreo::service::ingest::collect_files(&data);
+    let files = choreo::search::ingest::collect_files(&data);
     let t = std::time::Instant::now();
-    let r = choreo::service::keyframes::eval_keyframes(&files, bpm, &counts)?;
+    let r = choreo::eval::keyframes::eval_keyframes(&files, bpm, &counts)?;
     if json {
         println!(
             "{}",

@@ -1,10 +1,10 @@
 //! `choreo eval generate`: prints the generation table (see
-//! `choreo::service::eval_generate`).
+//! `choreo::eval::generate`).
 
 use anyhow::{bail, Context, Result};
+use choreo::eval::generate::{eval_generate, GenOptions};
 use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
-use choreo::service::eval_generate::{eval_generate, GenOptions};
 use std::path::{Path, PathBuf};
 
 /// `T:K:P[:G]` (temperature, top-k, top-p, guidance), or `greedy`.

@@ -4,10 +4,10 @@
 //! speed of an hour of keypoints).
 
 use anyhow::{bail, Context, Result};
+use choreo::eval::footage::{evaluate, FootageEvalOptions};
 use choreo::features::Embedding;
 use choreo::motion::io::{self, keypoints as kpio, smpl_params, ReadOptions};
 use choreo::motion::keypoints::{synthesize, Layout, SynthOptions, DEFAULT_SMOOTH_S};
-use choreo::service::eval_footage::{evaluate, FootageEvalOptions};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -324,11 +324,11 @@ pub fn bench(a: BenchArgs) -> Result<()> {
     let t2 = Instant::now();
     let report = rt.block_on(async {
         let store = choreo::store::Store::open(&db).await?;
-        let opts = choreo::service::ingest::IngestOptions {
+        let opts = choreo::search::ingest::IngestOptions {
             read: read.clone(),
             ..Default::default()
         };
-        choreo::service::ingest::ingest(&store, std::slice::from_ref(&file), &opts, &|_, _, _| {})
+        choreo::search::ingest::ingest(&store, std::slice::from_ref(&file), &opts, &|_, _, _| {})
             .await
     })?;
     let ingest_s = t2.elapsed().as_secs_f64();

@@ -17,7 +17,7 @@ pub mod token;
 
 use anyhow::{Context, Result};
 
-pub use choreo::service::percentile;
+pub use choreo::eval::percentile;
 
 /// Rows of f32 as a 2-D `.npy` (written as f32).
 pub fn write_npy_f32(path: &std::path::Path, rows: &[Vec<f32>]) -> Result<()> {

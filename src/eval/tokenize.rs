@@ -32,7 +32,7 @@ pub fn rotation_series(m: &Motion) -> Series {
 
 /// Every table for the files under one path.
 pub fn eval_corpus(path: &Path) -> Result<CorpusTokenize, crate::motion::MotionError> {
-    let files = super::ingest::collect_files(&[path.to_path_buf()]);
+    let files = crate::search::ingest::collect_files(&[path.to_path_buf()]);
     let vocab = Vocabulary::new(BTreeMap::new());
     let (mut s72, mut s39, mut errors) = (vec![], vec![], vec![]);
     for f in &files {

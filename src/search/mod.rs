@@ -11,6 +11,7 @@
 //! built, which builds it. The request checks live in [`request`], the
 //! writes and maintenance in [`writes`].
 
+pub mod ingest;
 mod request;
 mod writes;
 pub use writes::IngestOutcome;
@@ -21,7 +22,7 @@ use crate::features::{
 use crate::index::hnsw::{HnswIndex, HnswParams};
 use crate::index::{AnnIndex, ExactIndex, Hit, Metric};
 use crate::motion::{Labels, Motion, MotionError};
-use crate::service::ingest;
+
 use crate::store::{MotionRow, Store, StoreError, WindowRef};
 use serde::Serialize;
 use std::collections::{HashMap, HashSet};
