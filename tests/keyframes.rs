@@ -3,10 +3,9 @@
 //! data; failing instead under `CHOREO_REQUIRE_DATA=1`).
 
 use choreo::data::require;
+use choreo::eval::keyframes::eval_keyframes;
 use choreo::motion::{Labels, Motion, Skeleton};
-use choreo::service::keyframes::{
-    eval_keyframes, reconstruct, Inbetween, KeyframeRequest, Music, Select,
-};
+use choreo::service::keyframes::{reconstruct, Inbetween, KeyframeRequest, Music, Select};
 
 fn clip(frames: usize) -> Motion {
     let sk = Skeleton::smpl24();
