@@ -1,9 +1,10 @@
 //! `choreo serve`: one tokio process, REST (axum) and gRPC (tonic) on two
 //! ports over one shared state, graceful shutdown on SIGINT / SIGTERM.
 
-use crate::api::{grpc, http, AppState};
+use crate::api::{grpc, http};
 use crate::index::hnsw::HnswParams;
 use crate::search::Searcher;
+use crate::service::Choreo;
 use crate::store::Store;
 use anyhow::{Context, Result};
 use std::net::SocketAddr;
@@ -251,7 +252,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         None
     };
     let auth = Arc::new(
-        crate::api::auth::Auth::new(&crate::api::auth::AuthConfig {
+        crate::service::auth::Auth::new(&crate::service::auth::AuthConfig {
             token: cfg.token.clone(),
             tokens_file: cfg.tokens.clone(),
             public_read: cfg.public_read,
@@ -271,7 +272,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     } else if cfg.public_read {
         tracing::warn!("--public-read: anyone who reaches the port can query, list and export every stored motion");
     }
-    crate::api::auth::spawn_reloader(auth.clone(), store.clone());
+    crate::service::auth::spawn_reloader(auth.clone(), store.clone());
     let inbetweener = if cfg.inbetweener.exists() {
         Some(Arc::new(
             crate::lm::inbetween::Inbetweener::load_with(&cfg.inbetweener, &engine)
@@ -284,7 +285,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         );
         None
     };
-    let state = Arc::new(AppState::new(
+    let state = Arc::new(Choreo::new(
         store,
         searcher,
         cfg.workers,
@@ -326,7 +327,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         .await
         .context("REST server")
     });
-    let grpc_metrics = crate::api::metrics::GrpcMetricsLayer(state.metrics.clone());
+    let grpc_metrics = crate::service::metrics::GrpcMetricsLayer(state.metrics.clone());
     let svc = grpc::service(state, max);
     // Standard gRPC health (SERVING for "" and choreo.v1.Choreo) and
     // reflection (grpcurl works without the .proto file).

@@ -4,9 +4,9 @@
 //! rate limits with Retry-After, and start-up refusals for bad settings.
 //! Runs on an empty store (no data needed): writes are inline motions.
 
-use choreo::api::auth::hash_token;
 use choreo::api::grpc::pb;
 use choreo::server::{start, ServeConfig};
+use choreo::service::auth::hash_token;
 use serde_json::{json, Value};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};

@@ -1,8 +1,11 @@
 //! gRPC over tonic (`proto/choreo/v1/choreo.proto`): every method converts
 //! and calls the operation of [`super`].
 
-use super::{ApiError, AppState, InterpolateParams, KeyframesParams, QueryParams};
 use crate::motion::io::json::MotionParts;
+use crate::service::interpolate::InterpolateParams;
+use crate::service::keyframes::KeyframesParams;
+use crate::service::query::QueryParams;
+use crate::service::{self, ApiError, Choreo as Core};
 use std::sync::Arc;
 use tokio_stream::StreamExt;
 use tonic::{Request, Response, Status};
@@ -12,7 +15,7 @@ pub mod pb {
     tonic::include_proto!("choreo.v1");
 }
 
-use super::auth::Scope;
+use crate::service::auth::Scope;
 use pb::choreo_server::{Choreo, ChoreoServer};
 
 mod convert;
@@ -26,7 +29,7 @@ type FrameStream =
     std::pin::Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::GeneratedFrame, Status>> + Send>>;
 
 pub struct ChoreoGrpc {
-    pub state: Arc<AppState>,
+    pub state: Arc<Core>,
 }
 
 #[tonic::async_trait]
@@ -42,7 +45,7 @@ impl Choreo for ChoreoGrpc {
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let p = generate_params(req.into_inner())?;
-        let (m, r) = super::lm::generate(&self.state, p, &who).await?;
+        let (m, r) = service::generate::generate(&self.state, p, &who).await?;
         Ok(Response::new(pb::GenerateResponse {
             output: Some(motion_pb(&m)),
             frames: r.frames as u32,
@@ -59,8 +62,8 @@ impl Choreo for ChoreoGrpc {
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let p = generate_params(req.into_inner())?;
-        let (skeleton, fps) = super::lm::stream_format(&self.state)?;
-        let rx = super::lm::generate_stream(&self.state, p, &who).await?;
+        let (skeleton, fps) = service::generate::stream_format(&self.state)?;
+        let rx = service::generate::generate_stream(&self.state, p, &who).await?;
         let out = tokio_stream::wrappers::ReceiverStream::new(rx).map(move |r| {
             r.map(|f| frame_pb(&f, &skeleton, fps))
                 .map_err(Status::from)
@@ -78,15 +81,15 @@ impl Choreo for ChoreoGrpc {
         let first = inbound.message().await?.ok_or_else(|| {
             Status::invalid_argument("duet: the stream ended before its set-up message")
         })?;
-        let (skeleton, fps) = super::lm::stream_format(&self.state)?;
+        let (skeleton, fps) = service::generate::stream_format(&self.state)?;
         let labels = first.labels.clone().into_iter().collect();
-        let mut session = super::lm::DuetSession::open(
+        let session = service::generate::DuetSession::open(
             &self.state,
             &labels,
             &first.prompt_joints,
             sampling(first.sampling),
         )?;
-        let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::GeneratedFrame, Status>>(64);
+        let (frames_in, frames_out) = service::generate::duet(session);
         tokio::spawn(async move {
             let mut pending = first.frame;
             loop {
@@ -101,7 +104,7 @@ impl Choreo for ChoreoGrpc {
                     },
                 };
                 let motion = (|| {
-                    super::motion_from_parts(
+                    service::input::motion_from_parts(
                         "frame",
                         MotionParts {
                             name: "duet".into(),
@@ -113,42 +116,17 @@ impl Choreo for ChoreoGrpc {
                         },
                     )
                 })();
-                let out = match motion {
-                    Ok(m) => {
-                        let joined = tokio::task::spawn_blocking(move || {
-                            let r = session.step(m);
-                            (session, r)
-                        })
-                        .await;
-                        match joined {
-                            Ok((s, r)) => {
-                                session = s;
-                                r
-                            }
-                            // A failed step takes the session with it: say so, end the duet.
-                            Err(e) => {
-                                let _ = tx
-                                    .send(Err(Status::internal(format!("duet step failed: {e}"))))
-                                    .await;
-                                break;
-                            }
-                        }
-                    }
-                    Err(e) => Err(e),
-                };
-                let msg = out
-                    .map(|f| frame_pb(&f, &skeleton, fps))
-                    .map_err(Status::from);
-                let failed = msg.is_err();
-                // A closed channel means the client left: stop.
-                if tx.send(msg).await.is_err() || failed {
+                // A closed channel means the duet ended (an error, or the client left).
+                if frames_in.send(motion).await.is_err() {
                     break;
                 }
             }
         });
-        Ok(Response::new(Box::pin(
-            tokio_stream::wrappers::ReceiverStream::new(rx),
-        )))
+        let out = tokio_stream::wrappers::ReceiverStream::new(frames_out).map(move |r| {
+            r.map(|f| frame_pb(&f, &skeleton, fps))
+                .map_err(Status::from)
+        });
+        Ok(Response::new(Box::pin(out)))
     }
 
     async fn classify(
@@ -159,7 +137,7 @@ impl Choreo for ChoreoGrpc {
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
-        let c = super::lm::classify(&self.state, source("motion", r.motion)?, &who).await?;
+        let c = service::classify::classify(&self.state, source("motion", r.motion)?, &who).await?;
         Ok(Response::new(pb::ClassifyResponse {
             classes: c
                 .into_iter()
@@ -183,7 +161,7 @@ impl Choreo for ChoreoGrpc {
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
-        let hits = super::query(
+        let hits = service::query::query(
             &self.state,
             QueryParams {
                 motion: source("motion", r.motion)?,
@@ -223,7 +201,7 @@ impl Choreo for ChoreoGrpc {
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
-        let (m, rep) = super::interpolate(
+        let (m, rep) = service::interpolate::interpolate(
             &self.state,
             InterpolateParams {
                 input: source("input", r.input)?,
@@ -272,7 +250,7 @@ impl Choreo for ChoreoGrpc {
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
-        let m = super::lowpass(
+        let m = service::lowpass::lowpass(
             &self.state,
             source("motion", r.motion)?,
             r.cutoff as usize,
@@ -292,7 +270,7 @@ impl Choreo for ChoreoGrpc {
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let r = req.into_inner();
-        let (m, rep) = super::keyframes(
+        let (m, rep) = service::keyframes::keyframes(
             &self.state,
             KeyframesParams {
                 motion: source("motion", r.motion)?,
@@ -330,7 +308,7 @@ impl Choreo for ChoreoGrpc {
         let who = self
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
-        let rows = super::list_motions(&self.state, &who).await?;
+        let rows = service::motions::list_motions(&self.state, &who).await?;
         Ok(Response::new(pb::ListMotionsResponse {
             motions: rows.into_iter().map(summary_pb).collect(),
         }))
@@ -352,7 +330,7 @@ impl Choreo for ChoreoGrpc {
             video: r.video,
             video_offset_s: r.video_offset_s,
         });
-        let stored = super::ingest(
+        let stored = service::motions::ingest(
             &self.state,
             source("motion", r.motion)?,
             r.labels.into_iter().collect(),
@@ -368,14 +346,14 @@ impl Choreo for ChoreoGrpc {
             .into_iter()
             .collect();
         Ok(Response::new(match stored.stored {
-            super::Stored::New { motion_id, windows } => pb::IngestResponse {
+            service::motions::Stored::New { motion_id, windows } => pb::IngestResponse {
                 motion_id,
                 created: true,
                 windows: windows as u32,
                 merged_labels,
                 status: "new".into(),
             },
-            super::Stored::Existing { motion_id } => pb::IngestResponse {
+            service::motions::Stored::Existing { motion_id } => pb::IngestResponse {
                 motion_id,
                 created: false,
                 windows: 0,
@@ -392,7 +370,7 @@ impl Choreo for ChoreoGrpc {
         let who = self
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
-        let (row, m) = super::get_motion(&self.state, req.into_inner().id, &who).await?;
+        let (row, m) = service::motions::get_motion(&self.state, req.into_inner().id, &who).await?;
         Ok(Response::new(pb::GetMotionResponse {
             summary: Some(summary_pb(row)),
             motion: Some(motion_pb(&m)),
@@ -406,7 +384,7 @@ impl Choreo for ChoreoGrpc {
         let who = self
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
-        let bvh = super::export_bvh(&self.state, req.into_inner().id, &who).await?;
+        let bvh = service::motions::export_bvh(&self.state, req.into_inner().id, &who).await?;
         Ok(Response::new(pb::ExportMotionResponse { bvh }))
     }
 
@@ -418,7 +396,7 @@ impl Choreo for ChoreoGrpc {
             .state
             .authorize(bearer(&req), Scope::Write, peer(&req))?;
         let actor = actor(&who, &req);
-        super::delete_motion(&self.state, req.into_inner().id, &who, &actor).await?;
+        service::motions::delete_motion(&self.state, req.into_inner().id, &who, &actor).await?;
         Ok(Response::new(pb::DeleteMotionResponse {}))
     }
 
@@ -429,7 +407,7 @@ impl Choreo for ChoreoGrpc {
         let who = self
             .state
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
-        let names = super::list_collections(&self.state, &who).await?;
+        let names = service::motions::list_collections(&self.state, &who).await?;
         Ok(Response::new(pb::ListCollectionsResponse { names }))
     }
 
@@ -442,7 +420,7 @@ impl Choreo for ChoreoGrpc {
             .authorize(bearer(&req), Scope::Admin, peer(&req))?;
         let actor = actor(&who, &req);
         let name = req.into_inner().name;
-        let created = super::create_collection(&self.state, &name, &actor).await?;
+        let created = service::motions::create_collection(&self.state, &name, &actor).await?;
         Ok(Response::new(pb::CreateCollectionResponse { created }))
     }
 
@@ -456,7 +434,7 @@ impl Choreo for ChoreoGrpc {
             0 => 100,
             n => n,
         };
-        let entries = super::audit(&self.state, limit)
+        let entries = service::motions::audit(&self.state, limit)
             .await?
             .into_iter()
             .map(|r| pb::AuditEntry {
@@ -473,7 +451,7 @@ impl Choreo for ChoreoGrpc {
 }
 
 /// The gRPC service with its message-size limit.
-pub fn service(state: Arc<AppState>, max_message: usize) -> ChoreoServer<ChoreoGrpc> {
+pub fn service(state: Arc<Core>, max_message: usize) -> ChoreoServer<ChoreoGrpc> {
     ChoreoServer::new(ChoreoGrpc { state })
         .max_decoding_message_size(max_message)
         .max_encoding_message_size(max_message.max(64 << 20))

@@ -1,8 +1,11 @@
 //! REST over axum: JSON in, JSON out; every handler converts and calls the
 //! operation of [`super`].
 
-use super::auth::Principal;
-use super::{ApiError, AppState, InterpolateParams, KeyframesParams, QueryParams};
+use crate::service::auth::Principal;
+use crate::service::interpolate::InterpolateParams;
+use crate::service::keyframes::KeyframesParams;
+use crate::service::query::QueryParams;
+use crate::service::{self, ApiError, Choreo};
 use axum::extract::rejection::{JsonRejection, PathRejection};
 use axum::extract::{DefaultBodyLimit, Path, State};
 use axum::http::{HeaderMap, StatusCode};
@@ -76,12 +79,12 @@ pub(crate) fn decode_error(text: &str) -> ApiError {
 }
 
 async fn query(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<QueryBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
-    let hits = super::query(
+    let hits = service::query::query(
         &s,
         QueryParams {
             motion: source("motion", b.motion)?,
@@ -100,12 +103,12 @@ async fn query(
 }
 
 async fn interpolate(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<InterpolateBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
-    let (m, r) = super::interpolate(
+    let (m, r) = service::interpolate::interpolate(
         &s,
         InterpolateParams {
             input: source("input", b.input)?,
@@ -126,17 +129,17 @@ async fn interpolate(
 }
 
 async fn lowpass(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<LowpassBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
-    let m = super::lowpass(&s, source("motion", b.motion)?, b.cutoff, &who).await?;
+    let m = service::lowpass::lowpass(&s, source("motion", b.motion)?, b.cutoff, &who).await?;
     Ok(Json(json!({ "output": MotionJson::from_motion(&m) })))
 }
 
 async fn keyframes(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<KeyframesBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
@@ -150,7 +153,7 @@ async fn keyframes(
         )),
         None => None,
     };
-    let (m, r) = super::keyframes(
+    let (m, r) = service::keyframes::keyframes(
         &s,
         KeyframesParams {
             motion: source("motion", b.motion)?,
@@ -170,7 +173,7 @@ async fn keyframes(
 }
 
 fn summary(r: &crate::store::MotionRow) -> serde_json::Value {
-    let mut v = json!({"id": r.id, "source_path": super::public_source(&r.source_path), "format": r.format, "fps": r.fps,
+    let mut v = json!({"id": r.id, "source_path": service::query::public_source(&r.source_path), "format": r.format, "fps": r.fps,
            "frames": r.frames, "joints": r.joints, "skeleton": r.skeleton,
            "duration_s": r.duration_s, "labels": r.labels, "collection": r.collection});
     if let Some(link) = &r.video {
@@ -181,21 +184,21 @@ fn summary(r: &crate::store::MotionRow) -> serde_json::Value {
 }
 
 async fn list_motions(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    let rows = super::list_motions(&s, &who).await?;
+    let rows = service::motions::list_motions(&s, &who).await?;
     let motions: Vec<serde_json::Value> = rows.iter().map(summary).collect();
     Ok(Json(json!({ "motions": motions })))
 }
 
 /// The writer of a request (its principal, set by [`require_scope`]) and
 /// its id.
-fn actor(who: &Principal, headers: &HeaderMap) -> super::Actor {
-    super::Actor {
+fn actor(who: &Principal, headers: &HeaderMap) -> service::motions::Actor {
+    service::motions::Actor {
         name: who.name.clone(),
         request_id: headers
-            .get(super::metrics::REQUEST_ID)
+            .get(crate::service::metrics::REQUEST_ID)
             .and_then(|v| v.to_str().ok())
             .unwrap_or("")
             .to_string(),
@@ -203,7 +206,7 @@ fn actor(who: &Principal, headers: &HeaderMap) -> super::Actor {
 }
 
 async fn ingest(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     headers: HeaderMap,
     b: Result<Json<IngestBody>, JsonRejection>,
@@ -216,7 +219,7 @@ async fn ingest(
         video,
         video_offset_s: b.video_offset_s.unwrap_or(0.0),
     });
-    let stored = super::ingest(
+    let stored = service::motions::ingest(
         &s,
         source("motion", b.motion)?,
         b.labels,
@@ -227,12 +230,12 @@ async fn ingest(
     )
     .await?;
     let status = match stored.stored {
-        super::Stored::New { .. } => StatusCode::CREATED,
-        super::Stored::Existing { .. } => StatusCode::OK,
+        service::motions::Stored::New { .. } => StatusCode::CREATED,
+        service::motions::Stored::Existing { .. } => StatusCode::OK,
     };
     Ok((
         status,
-        Json(serde_json::to_value(stored).map_err(super::internal)?),
+        Json(serde_json::to_value(stored).map_err(service::internal)?),
     ))
 }
 
@@ -241,21 +244,21 @@ fn motion_id(p: Result<Path<i64>, PathRejection>) -> Result<i64, ApiError> {
         .map_err(|e| ApiError::invalid("id", e.body_text()))
 }
 
-async fn model_info(State(s): State<Arc<AppState>>) -> Result<Json<serde_json::Value>, ApiError> {
-    Ok(Json(super::lm::model_info(&s)?))
+async fn model_info(State(s): State<Arc<Choreo>>) -> Result<Json<serde_json::Value>, ApiError> {
+    Ok(Json(service::generate::model_info(&s)?))
 }
 
 async fn get_motion(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    let (row, m) = super::get_motion(&s, motion_id(id)?, &who).await?;
+    let (row, m) = service::motions::get_motion(&s, motion_id(id)?, &who).await?;
     // The same names as gRPC's GetMotionResponse: `summary` and `motion`.
     Ok(Json(json!({
         "summary": summary(&row),
         "motion": MotionJson::from_motion(&m),
-        "skeleton": super::lm::skeleton_json(&m.skeleton),
+        "skeleton": service::generate::skeleton_json(&m.skeleton),
     })))
 }
 
@@ -275,12 +278,12 @@ fn attachment(content_type: &str, filename: String, body: impl IntoResponse) -> 
 }
 
 async fn export_glb(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Response, ApiError> {
     let id = motion_id(id)?;
-    let bytes = super::export_glb(&s, id, &who).await?;
+    let bytes = service::motions::export_glb(&s, id, &who).await?;
     Ok(attachment(
         "model/gltf-binary",
         format!("motion-{id}.glb"),
@@ -289,12 +292,12 @@ async fn export_glb(
 }
 
 async fn export_motion(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<Response, ApiError> {
     let id = motion_id(id)?;
-    let text = super::export_bvh(&s, id, &who).await?;
+    let text = service::motions::export_bvh(&s, id, &who).await?;
     Ok(attachment(
         "text/plain; charset=utf-8",
         format!("motion-{id}.bvh"),
@@ -303,32 +306,32 @@ async fn export_motion(
 }
 
 async fn delete_motion(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     headers: HeaderMap,
     id: Result<Path<i64>, PathRejection>,
 ) -> Result<StatusCode, ApiError> {
-    super::delete_motion(&s, motion_id(id)?, &who, &actor(&who, &headers)).await?;
+    service::motions::delete_motion(&s, motion_id(id)?, &who, &actor(&who, &headers)).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
 async fn list_collections(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    let names = super::list_collections(&s, &who).await?;
+    let names = service::motions::list_collections(&s, &who).await?;
     Ok(Json(json!({ "collections": names })))
 }
 
 /// Create a collection (`admin` scope): 201 when new, 200 when it exists.
 async fn create_collection(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     headers: HeaderMap,
     b: Result<Json<CollectionBody>, JsonRejection>,
 ) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
     let b = body(b)?;
-    let created = super::create_collection(&s, &b.name, &actor(&who, &headers)).await?;
+    let created = service::motions::create_collection(&s, &b.name, &actor(&who, &headers)).await?;
     Ok((
         if created {
             StatusCode::CREATED
@@ -341,21 +344,21 @@ async fn create_collection(
 
 /// The newest audit entries (`admin` scope).
 async fn audit(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     q: Result<axum::extract::Query<AuditQuery>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let q = q.map_err(|e| ApiError::invalid("limit", e.body_text()))?;
-    let entries = super::audit(&s, q.limit).await?;
+    let entries = service::motions::audit(&s, q.limit).await?;
     Ok(Json(json!({ "entries": entries })))
 }
 
 async fn generate(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<GenerateBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let p = body(b)?.params()?;
-    let (m, r) = super::lm::generate(&s, p, &who).await?;
+    let (m, r) = service::generate::generate(&s, p, &who).await?;
     Ok(Json(json!({
         "output": MotionJson::from_motion(&m),
         "frames": r.frames,
@@ -365,12 +368,12 @@ async fn generate(
 }
 
 async fn classify(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<ClassifyBody>, JsonRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let b = body(b)?;
-    let c = super::lm::classify(&s, source("motion", b.motion)?, &who).await?;
+    let c = service::classify::classify(&s, source("motion", b.motion)?, &who).await?;
     let kinds: Vec<serde_json::Value> = c
         .iter()
         .map(|(k, v)| {
@@ -384,11 +387,11 @@ async fn classify(
     Ok(Json(json!({ "classes": kinds })))
 }
 
-pub fn router(state: Arc<AppState>, max_body: usize) -> Router {
+pub fn router(state: Arc<Choreo>, max_body: usize) -> Router {
     Router::new()
         .route(
             "/metrics",
-            get(|State(s): State<Arc<AppState>>| async move {
+            get(|State(s): State<Arc<Choreo>>| async move {
                 (
                     [(
                         axum::http::header::CONTENT_TYPE,

@@ -20,10 +20,10 @@
 //! socket.
 
 use super::http::{decode_error, GenerateBody, SamplingJson};
-use super::lm::{self, StreamFrame};
-use super::{ApiError, AppState};
 use crate::motion::io::json::MotionJson;
 use crate::motion::Labels;
+use crate::service::generate::{self as lm, StreamFrame};
+use crate::service::{self, ApiError, Choreo};
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
 use axum::extract::State;
 use axum::response::Response;
@@ -37,15 +37,15 @@ use std::time::Instant;
 pub const MAX_MESSAGE_BYTES: usize = 16 << 20;
 
 pub async fn generate(
-    State(s): State<Arc<AppState>>,
-    axum::Extension(who): axum::Extension<super::auth::Principal>,
+    State(s): State<Arc<Choreo>>,
+    axum::Extension(who): axum::Extension<service::auth::Principal>,
     ws: WebSocketUpgrade,
 ) -> Response {
     ws.max_message_size(MAX_MESSAGE_BYTES)
         .on_upgrade(move |socket| generate_socket(s, socket, who))
 }
 
-pub async fn duet(State(s): State<Arc<AppState>>, ws: WebSocketUpgrade) -> Response {
+pub async fn duet(State(s): State<Arc<Choreo>>, ws: WebSocketUpgrade) -> Response {
     ws.max_message_size(MAX_MESSAGE_BYTES)
         .on_upgrade(move |socket| duet_socket(s, socket))
 }
@@ -107,7 +107,7 @@ async fn next_json<T: for<'de> Deserialize<'de>>(
     }
 }
 
-async fn generate_socket(state: Arc<AppState>, mut socket: WebSocket, who: super::auth::Principal) {
+async fn generate_socket(state: Arc<Choreo>, mut socket: WebSocket, who: service::auth::Principal) {
     let body: GenerateBody = match next_json(&mut socket).await {
         Ok(Some(b)) => b,
         Ok(None) => return,
@@ -186,13 +186,13 @@ struct DuetFrame {
     frame: MotionJson,
 }
 
-async fn duet_socket(state: Arc<AppState>, mut socket: WebSocket) {
+async fn duet_socket(state: Arc<Choreo>, mut socket: WebSocket) {
     let setup: DuetSetup = match next_json(&mut socket).await {
         Ok(Some(s)) => s,
         Ok(None) => return,
         Err(e) => return fail(socket, e).await,
     };
-    let mut session = match lm::DuetSession::open(
+    let session = match lm::DuetSession::open(
         &state,
         &setup.labels,
         &setup.prompt_joints,
@@ -201,6 +201,7 @@ async fn duet_socket(state: Arc<AppState>, mut socket: WebSocket) {
         Ok(s) => s,
         Err(e) => return fail(socket, e).await,
     };
+    let (frames_in, mut frames_out) = lm::duet(session);
     let mut pending = setup.frame;
     loop {
         let frame = match pending.take() {
@@ -211,26 +212,21 @@ async fn duet_socket(state: Arc<AppState>, mut socket: WebSocket) {
                 Err(e) => return fail(socket, e).await,
             },
         };
-        let motion = match super::motion_from_json("frame", frame) {
+        let motion = match service::input::motion_from_json("frame", frame) {
             Ok(m) => m,
             Err(e) => return fail(socket, e).await,
         };
-        let stepped = tokio::task::spawn_blocking(move || {
-            let r = session.step(motion);
-            (session, r)
-        })
-        .await;
-        match stepped {
-            Ok((s, Ok(f))) => {
-                session = s;
+        if frames_in.send(Ok(motion)).await.is_err() {
+            return;
+        }
+        match frames_out.recv().await {
+            Some(Ok(f)) => {
                 if !send(&mut socket, &frame_json(&f)).await {
                     return;
                 }
             }
-            Ok((_, Err(e))) => return fail(socket, e).await,
-            Err(e) => {
-                return fail(socket, ApiError::Internal(format!("duet step failed: {e}"))).await
-            }
+            Some(Err(e)) => return fail(socket, e).await,
+            None => return,
         }
     }
 }

@@ -5,10 +5,10 @@ use super::{parse_pairs, runtime};
 use anyhow::{bail, Context, Result};
 use choreo::features::Embedding;
 use choreo::index::hnsw::HnswParams;
-use choreo::index::Metric;
 use choreo::motion::io::{self};
 use choreo::search::ingest::IngestOptions;
 use choreo::search::{QueryRequest, Searcher};
+use choreo::service::query;
 use choreo::store::Store;
 use serde_json::json;
 use std::path::PathBuf;
@@ -63,9 +63,9 @@ pub struct QueryArgs {
     #[arg(long, default_value_t = 0.0)]
     pub start: f64,
     /// Segment length in frames at 60 fps (at least 128).
-    #[arg(long, default_value_t = 128)]
+    #[arg(long, default_value_t = query::DEFAULT_FRAMES)]
     pub frames: usize,
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = query::DEFAULT_K)]
     pub k: usize,
     /// stft, dct, pca, pose or lm (default: pose for keypoint /
     /// SMPL-from-video files, i.e. with --keypoints or --source-fps; stft
@@ -75,8 +75,9 @@ pub struct QueryArgs {
     /// A frame model folder, for the lm embedding.
     #[arg(long)]
     pub model: Option<PathBuf>,
-    #[arg(long, default_value = "cosine")]
-    pub metric: String,
+    /// cosine (the default) or euclidean.
+    #[arg(long)]
+    pub metric: Option<String>,
     /// KIND=VALUE, repeatable: hits must carry every label.
     #[arg(long)]
     pub filter: Vec<String>,
@@ -157,16 +158,15 @@ pub fn query_cmd(a: QueryArgs) -> Result<()> {
     } = a;
     let read = read.with_fps(&fps)?;
     let footage = read.keypoints.is_some() || read.source_fps.is_some();
-    let embedding = embedding.unwrap_or_else(|| if footage { "pose" } else { "stft" }.into());
-    let embedding = Embedding::parse(&embedding)
-        .with_context(|| format!("--embedding: '{embedding}' is not stft, dct, pca, pose or lm"))?;
+    let embedding = query::embedding_or_default(embedding.as_deref().unwrap_or(""), footage)
+        .map_err(|e| anyhow::anyhow!("--{e}"))?;
     let lm = match (embedding, model) {
         (Embedding::Lm, Some(dir)) => Some(load_lm(&dir)?),
         (Embedding::Lm, None) => bail!("--embedding lm: give the frame model with --model DIR"),
         _ => None,
     };
-    let metric = Metric::parse(&metric)
-        .with_context(|| format!("--metric: '{metric}' is not cosine or euclidean"))?;
+    let metric = query::metric_or_default(metric.as_deref().unwrap_or(""))
+        .map_err(|e| anyhow::anyhow!("--{e}"))?;
     let filters = parse_pairs("--filter", &filter)?;
     let m = io::read_path(&motion, &read.options())?.motion;
     let req = QueryRequest {
@@ -194,7 +194,7 @@ async fn ingest(
         bail!("--hop must be at least 1");
     }
     let store = Store::open(&db).await?;
-    if !choreo::api::auth::valid_collection_name(&opts.collection) {
+    if !choreo::service::auth::valid_collection_name(&opts.collection) {
         bail!("--collection: 1 to 64 letters, digits and - _ . only");
     }
     store.create_collection(&opts.collection).await?;

@@ -1,7 +1,7 @@
 //! `choreo token`: lines for a token file (`choreo serve --tokens FILE`).
 
 use anyhow::{bail, Result};
-use choreo::api::auth::hash_token;
+use choreo::service::auth::hash_token;
 use rand::RngCore;
 use std::io::Read;
 
@@ -27,7 +27,8 @@ pub fn run(cmd: TokenCmd) -> Result<()> {
             let secret: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
             let line = format!("{name} {scopes} {}", hash_token(&secret));
             // Checked as the server will read it.
-            choreo::api::auth::parse_tokens("the new line", &line).map_err(anyhow::Error::msg)?;
+            choreo::service::auth::parse_tokens("the new line", &line)
+                .map_err(anyhow::Error::msg)?;
             eprintln!("token for {name} (shown once): {secret}");
             println!("{line}");
             Ok(())

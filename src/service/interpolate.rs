@@ -1,9 +1,11 @@
 //! Interpolation between two motions (thesis 000 §3.5–3.6, SPEC §3) with
-//! Table 3.3's report.
+//! Table 3.3's report, and the use case that runs it on the heavy pool.
 
+use super::input::MotionInput;
+use super::{auth, ApiError, Choreo};
 use crate::features::interpolate::{
-    dct_band_swap, interpolate, mean_jerk, median_jerk, to_f64, unwrap_axis_angle,
-    InterpolateOptions,
+    dct_band_swap, interpolate as interpolate_channels, mean_jerk, median_jerk, to_f64,
+    unwrap_axis_angle, InterpolateOptions,
 };
 use crate::features::{
     rows72, smpl24_at_60, window, window_starts, Embedding, Extractor, StftParams,
@@ -123,7 +125,7 @@ pub fn interpolate_motions(
         (b, repaired.target) = b.despike(DESPIKE_RUN, DESPIKE_DEG.to_radians());
     }
     let t = std::time::Instant::now();
-    let r = interpolate(&to_f64(&rows72(&a)), &to_f64(&rows72(&b)), opts)
+    let r = interpolate_channels(&to_f64(&rows72(&a)), &to_f64(&rows72(&b)), opts)
         .map_err(|e| e.in_file(&format!("{} → {}", input.name, target.name)))?;
     let seconds = t.elapsed().as_secs_f64();
     let n = r.frames;
@@ -164,4 +166,60 @@ pub fn interpolate_motions(
         repaired,
     };
     Ok((o, report))
+}
+
+pub struct InterpolateParams {
+    pub input: MotionInput,
+    pub target: MotionInput,
+    pub band: (usize, usize),
+    pub objective: String,
+    pub steps: usize,
+    pub learning_rate: f64,
+    pub despike: bool,
+}
+
+pub async fn interpolate(
+    state: &Choreo,
+    p: InterpolateParams,
+    who: &auth::Principal,
+) -> Result<(Motion, InterpolateReport), ApiError> {
+    let a = state.resolve("input", p.input, who).await?;
+    let b = state.resolve("target", p.target, who).await?;
+    let objective = match p.objective.as_str() {
+        "" => Embedding::Dct,
+        o => Embedding::parse(o).ok_or_else(|| {
+            ApiError::invalid("objective", format!("'{o}' is not dct, stft or pca"))
+        })?,
+    };
+    let defaults = InterpolateOptions::default();
+    let opts = InterpolateOptions {
+        objective,
+        band: if p.band == (0, 0) {
+            defaults.band
+        } else {
+            p.band
+        },
+        steps: if p.steps == 0 {
+            defaults.steps
+        } else {
+            p.steps
+        },
+        learning_rate: if p.learning_rate == 0.0 {
+            defaults.learning_rate
+        } else {
+            p.learning_rate
+        },
+    };
+    if opts.steps > 5000 {
+        return Err(ApiError::invalid(
+            "steps",
+            format!("{}; at most 5000 per request", opts.steps),
+        ));
+    }
+    let despike = p.despike;
+    state
+        .heavy("interpolate", move || {
+            Ok(interpolate_motions(&a, &b, &opts, despike)?)
+        })
+        .await
 }

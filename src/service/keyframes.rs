@@ -1,5 +1,8 @@
-//! Keyframe selection + in-between reconstruction of a motion.
+//! Keyframe selection + in-between reconstruction of a motion, and the use
+//! case that runs it on the heavy pool.
 
+use super::input::{prefix, MotionInput};
+use super::{auth, ApiError, Choreo};
 use crate::features::smpl24_at_60;
 use crate::keyframes::inbetween::{self, BezierOffsets};
 use crate::keyframes::metrics::{beat_alignment, motion_beats, mse, per_frame_error};
@@ -245,4 +248,80 @@ pub fn reconstruct(
         inbetween: req.inbetween.name().to_string(),
     };
     Ok((r, report))
+}
+
+pub struct KeyframesParams {
+    pub motion: MotionInput,
+    pub count: usize,
+    pub select: String,
+    pub inbetween: String,
+    pub bpm: f64,
+    pub music: Option<(String, Vec<u8>)>,
+}
+
+pub async fn keyframes(
+    state: &Choreo,
+    p: KeyframesParams,
+    who: &auth::Principal,
+) -> Result<(Motion, KeyframeReport), ApiError> {
+    let m = state.resolve("motion", p.motion, who).await?;
+    let select = match p.select.as_str() {
+        "" => Select::Dp,
+        s => Select::parse(s).ok_or_else(|| {
+            ApiError::invalid(
+                "select",
+                format!("'{s}' is not even, onset, percussive, nmfd or dp"),
+            )
+        })?,
+    };
+    let inbetween = match p.inbetween.as_str() {
+        "" | "slerp" => Inbetween::Slerp,
+        "bezier" => Inbetween::Bezier,
+        "learned" => Inbetween::Learned(LearnedModel(state.inbetweener.clone().ok_or_else(
+            || {
+                ApiError::Unavailable(
+                    "no learned in-betweener is installed (set --inbetweener)".into(),
+                )
+            },
+        )?)),
+        o => {
+            return Err(ApiError::invalid(
+                "inbetween",
+                format!("'{o}' is not slerp, bezier or learned"),
+            ))
+        }
+    };
+    if p.music.is_some() && p.bpm != 0.0 {
+        return Err(ApiError::invalid(
+            "bpm",
+            "give music or bpm, not both (the music's own beats set the grid)",
+        ));
+    }
+    let (count, bpm, music) = (p.count, p.bpm, p.music);
+    state
+        .heavy("keyframes", move || {
+            let music = match (music, bpm) {
+                (Some((name, bytes)), _) => {
+                    let ext = std::path::Path::new(&name)
+                        .extension()
+                        .and_then(|e| e.to_str())
+                        .map(|e| e.to_ascii_lowercase());
+                    let a = crate::audio::decode(bytes, &name, ext.as_deref())
+                        .map_err(|e| prefix("music", e.into()))?;
+                    let (_, f) =
+                        crate::audio::analyse(&a, &name).map_err(|e| prefix("music", e.into()))?;
+                    Music::Audio(Box::new(f))
+                }
+                (None, b) if b != 0.0 => Music::Bpm(b),
+                _ => Music::None,
+            };
+            let req = KeyframeRequest {
+                select,
+                inbetween,
+                count,
+                music,
+            };
+            Ok(reconstruct(&m, &req)?)
+        })
+        .await
 }

@@ -4,10 +4,10 @@
 //! bearer token, request id).
 
 use super::pb;
-use crate::api::auth::Principal;
-use crate::api::{ApiError, MotionInput};
 use crate::motion::io::json::MotionParts;
 use crate::motion::Motion;
+use crate::service::auth::Principal;
+use crate::service::{ApiError, MotionInput};
 use tonic::{Request, Status};
 
 impl From<ApiError> for Status {
@@ -38,8 +38,8 @@ pub(super) fn triples(field: &str, v: &[f64]) -> Result<Vec<[f64; 3]>, ApiError>
 
 pub(super) fn source(field: &str, s: Option<pb::MotionSource>) -> Result<MotionInput, ApiError> {
     match s.and_then(|s| s.source) {
-        Some(pb::motion_source::Source::Motion(m)) => {
-            Ok(MotionInput::Inline(crate::api::motion_from_parts(
+        Some(pb::motion_source::Source::Motion(m)) => Ok(MotionInput::Inline(
+            crate::service::input::motion_from_parts(
                 &format!("{field}.motion"),
                 MotionParts {
                     rotations: triples(&format!("{field}.motion.rotations"), &m.rotations)?,
@@ -49,10 +49,10 @@ pub(super) fn source(field: &str, s: Option<pb::MotionSource>) -> Result<MotionI
                     skeleton: m.skeleton,
                     labels: m.labels.into_iter().collect(),
                 },
-            )?))
-        }
+            )?,
+        )),
         Some(pb::motion_source::Source::File(f)) => Ok(MotionInput::File {
-            read: crate::api::read_options(
+            read: crate::service::input::read_options(
                 &format!("{field}.file"),
                 (!f.keypoints.is_empty()).then_some(f.keypoints.as_str()),
                 (f.fps != 0.0).then_some(f.fps),
@@ -103,8 +103,8 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
 
 pub(super) fn generate_params(
     r: pb::GenerateRequest,
-) -> Result<crate::api::lm::GenerateParams, ApiError> {
-    Ok(crate::api::lm::GenerateParams {
+) -> Result<crate::service::generate::GenerateParams, ApiError> {
+    Ok(crate::service::generate::GenerateParams {
         labels: r.labels.into_iter().collect(),
         frames: r.frames as usize,
         prompt: r.prompt.map(|p| source("prompt", Some(p))).transpose()?,
@@ -118,7 +118,7 @@ pub(super) fn generate_params(
 }
 
 pub(super) fn frame_pb(
-    f: &crate::api::lm::StreamFrame,
+    f: &crate::service::generate::StreamFrame,
     skeleton: &str,
     fps: f64,
 ) -> pb::GeneratedFrame {
@@ -139,12 +139,12 @@ pub(super) fn peer<T>(req: &Request<T>) -> Option<std::net::IpAddr> {
 
 /// The writer of a request and its id (`x-request-id`, set by the metrics
 /// layer when the caller sent none).
-pub(super) fn actor<T>(who: &Principal, req: &Request<T>) -> crate::api::Actor {
-    crate::api::Actor {
+pub(super) fn actor<T>(who: &Principal, req: &Request<T>) -> crate::service::motions::Actor {
+    crate::service::motions::Actor {
         name: who.name.clone(),
         request_id: req
             .metadata()
-            .get(crate::api::metrics::REQUEST_ID)
+            .get(crate::service::metrics::REQUEST_ID)
             .and_then(|v| v.to_str().ok())
             .unwrap_or("")
             .to_string(),
@@ -160,7 +160,7 @@ pub(super) fn bearer<T>(req: &Request<T>) -> Option<&str> {
 pub(super) fn summary_pb(r: crate::store::MotionRow) -> pb::MotionSummary {
     pb::MotionSummary {
         id: r.id,
-        source_path: crate::api::public_source(&r.source_path),
+        source_path: crate::service::query::public_source(&r.source_path),
         format: r.format,
         fps: r.fps,
         frames: r.frames,

@@ -1,9 +1,9 @@
 //! The REST request bodies as JSON: each refuses fields it does not know
 //! (named in the error), and turns into the transport-neutral parameters.
 
-use super::super::{ApiError, MotionInput};
 use super::MotionJson;
 use crate::motion::Labels;
+use crate::service::{self, ApiError, MotionInput};
 use base64::Engine;
 use serde::Deserialize;
 
@@ -43,7 +43,7 @@ pub(super) fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, 
     let s = s.ok_or_else(|| ApiError::invalid(field, "missing"))?;
     match (s.motion, s.file, s.id) {
         (None, None, Some(id)) => Ok(MotionInput::Stored(id)),
-        (Some(m), None, None) => Ok(MotionInput::Inline(super::super::motion_from_json(
+        (Some(m), None, None) => Ok(MotionInput::Inline(service::input::motion_from_json(
             &format!("{field}.motion"),
             m,
         )?)),
@@ -54,7 +54,7 @@ pub(super) fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, 
                     ApiError::invalid(format!("{field}.file.content_base64"), e.to_string())
                 })?;
             Ok(MotionInput::File {
-                read: super::super::read_options(
+                read: service::input::read_options(
                     &format!("{field}.file"),
                     f.keypoints.as_deref(),
                     f.fps,
@@ -224,8 +224,8 @@ pub struct GenerateBody {
 
 impl GenerateBody {
     /// The request both REST and the WebSocket stream take.
-    pub(crate) fn params(self) -> Result<super::super::lm::GenerateParams, ApiError> {
-        Ok(super::super::lm::GenerateParams {
+    pub(crate) fn params(self) -> Result<service::generate::GenerateParams, ApiError> {
+        Ok(service::generate::GenerateParams {
             labels: self.labels,
             frames: self.frames,
             prompt: self.prompt.map(|x| source("prompt", Some(x))).transpose()?,

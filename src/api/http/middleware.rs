@@ -1,7 +1,7 @@
 //! The REST middleware: scopes and tokens (`require_scope`), request spans
 //! and ids, metrics, and JSON bodies for unknown paths and wrong methods.
 
-use super::super::AppState;
+use crate::service::Choreo;
 use axum::extract::State;
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -53,11 +53,11 @@ pub(super) fn bearer(h: &HeaderMap) -> Option<&str> {
 /// request is taken from the caller's bucket; the caller's principal goes
 /// into the request for the handlers.
 pub(super) async fn require_scope(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     mut req: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
-    let Some(need) = super::super::auth::rest_scope(req.method(), req.uri().path()) else {
+    let Some(need) = crate::service::auth::rest_scope(req.method(), req.uri().path()) else {
         return next.run(req).await;
     };
     let addr = req
@@ -92,7 +92,7 @@ pub(super) const REFUSED_BODY_DRAIN: usize = 4 << 20;
 /// The REST routes; `max_body` bytes per request.
 /// Records every REST request (route template, status, latency).
 pub(super) async fn track(
-    State(s): State<Arc<AppState>>,
+    State(s): State<Arc<Choreo>>,
     req: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
@@ -120,7 +120,7 @@ pub(super) async fn request_span(
     mut req: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
-    use super::super::metrics::{request_id, REQUEST_ID};
+    use crate::service::metrics::{request_id, REQUEST_ID};
     let id = request_id(req.headers());
     let span = tracing::info_span!(
         "request",

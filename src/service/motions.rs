@@ -2,12 +2,14 @@
 //! delete and list stored motions, collections, and the audit trail. Every
 //! operation sees only the caller's collections.
 
-use super::{auth, internal, prefix, ApiError, AppState, MotionInput};
+use super::input::prefix;
+use super::{auth, internal, ApiError, Choreo, MotionInput};
 use crate::motion::io::bvh::{write_bvh, BvhWriteOptions};
 use crate::motion::io::json::write_json;
 use crate::motion::io::ReadOptions;
 use crate::motion::{Labels, Motion};
-use crate::search::ingest::{load_motion, load_source, parse_source, IngestOptions, Stored};
+pub use crate::search::ingest::Stored;
+use crate::search::ingest::{load_motion, load_source, parse_source, IngestOptions};
 use crate::search::IngestOutcome;
 use crate::store::{MotionRow, VideoLink};
 
@@ -42,7 +44,7 @@ pub struct Actor {
 /// Idempotent by content hash: labels sent with content already stored are
 /// merged into its labels, and the answer gives them.
 pub async fn ingest(
-    state: &AppState,
+    state: &Choreo,
     input: MotionInput,
     labels: Labels,
     video: Option<VideoLink>,
@@ -149,7 +151,7 @@ pub async fn ingest(
 }
 
 /// The newest `limit` (1..=10,000) audit entries, newest first.
-pub async fn audit(state: &AppState, limit: i64) -> Result<Vec<crate::store::AuditRow>, ApiError> {
+pub async fn audit(state: &Choreo, limit: i64) -> Result<Vec<crate::store::AuditRow>, ApiError> {
     if !(1..=10_000).contains(&limit) {
         return Err(ApiError::invalid(
             "limit",
@@ -162,7 +164,7 @@ pub async fn audit(state: &AppState, limit: i64) -> Result<Vec<crate::store::Aud
 /// A stored motion's row, when the caller may see it: a motion of a
 /// collection it cannot see is not found, the same answer as no motion.
 pub async fn visible(
-    state: &AppState,
+    state: &Choreo,
     id: i64,
     who: &auth::Principal,
 ) -> Result<MotionRow, ApiError> {
@@ -177,7 +179,7 @@ pub async fn visible(
 
 /// A stored motion and its row.
 pub async fn get_motion(
-    state: &AppState,
+    state: &Choreo,
     id: i64,
     who: &auth::Principal,
 ) -> Result<(MotionRow, Motion), ApiError> {
@@ -190,7 +192,7 @@ pub async fn get_motion(
 /// A stored motion as BVH text: a BVH source is given back byte for byte
 /// (unparsed), any other is written (SMPL skeleton, ZXY Euler, centimetres).
 pub async fn export_bvh(
-    state: &AppState,
+    state: &Choreo,
     id: i64,
     who: &auth::Principal,
 ) -> Result<String, ApiError> {
@@ -211,7 +213,7 @@ pub async fn export_bvh(
 
 /// A stored motion as binary glTF (skinned skeleton and its animation).
 pub async fn export_glb(
-    state: &AppState,
+    state: &Choreo,
     id: i64,
     who: &auth::Principal,
 ) -> Result<Vec<u8>, ApiError> {
@@ -225,7 +227,7 @@ pub async fn export_glb(
 
 /// Remove a stored motion and everything derived from it.
 pub async fn delete_motion(
-    state: &AppState,
+    state: &Choreo,
     id: i64,
     who: &auth::Principal,
     actor: &Actor,
@@ -247,7 +249,7 @@ pub async fn delete_motion(
 }
 
 pub async fn list_motions(
-    state: &AppState,
+    state: &Choreo,
     who: &auth::Principal,
 ) -> Result<Vec<MotionRow>, ApiError> {
     let mut rows = state.store.motions().await.map_err(ApiError::from)?;
@@ -257,7 +259,7 @@ pub async fn list_motions(
 
 /// The collections the caller may see.
 pub async fn list_collections(
-    state: &AppState,
+    state: &Choreo,
     who: &auth::Principal,
 ) -> Result<Vec<String>, ApiError> {
     let mut all = state.store.collections().await.map_err(ApiError::from)?;
@@ -268,7 +270,7 @@ pub async fn list_collections(
 /// Create a collection (`admin`); `true` when new. Recorded in the audit
 /// trail.
 pub async fn create_collection(
-    state: &AppState,
+    state: &Choreo,
     name: &str,
     actor: &Actor,
 ) -> Result<bool, ApiError> {

@@ -1,7 +1,7 @@
 //! Generate, stream, duet and classify: the language-model operations both
 //! transports call.
 
-use super::{ApiError, AppState, MotionInput};
+use super::{auth, ApiError, Choreo, MotionInput};
 use crate::lm::model::{MotionGenerator, MotionModel};
 use crate::lm::{forced_frames, prompt_slots, FrameDecoder, LmError, Sampling};
 use crate::motion::{Labels, Motion};
@@ -10,8 +10,6 @@ use tokio::sync::mpsc;
 
 /// Longest generation in one request, in frames (two minutes at 20 fps).
 pub const MAX_GENERATE_FRAMES: usize = 2400;
-/// Windows a classification reads at most (spread over the clip).
-pub const MAX_CLASSIFY_WINDOWS: usize = 32;
 /// Frames generated when the request names no length and no prompt.
 pub const DEFAULT_GENERATE_FRAMES: usize = 100;
 
@@ -35,7 +33,7 @@ impl From<LmError> for ApiError {
     }
 }
 
-fn model(state: &AppState) -> Result<MotionModel, ApiError> {
+pub(crate) fn model(state: &Choreo) -> Result<MotionModel, ApiError> {
     state.model.clone().ok_or_else(|| {
         ApiError::Unavailable(
             "no model is loaded (start the server with --model DIR holding manifest.json and model.onnx)".into(),
@@ -81,9 +79,9 @@ impl GenerateJob {
 
 /// Validates a request and sets the generation up (cheap: no model step).
 pub async fn generate_job(
-    state: &AppState,
+    state: &Choreo,
     p: GenerateParams,
-    who: &super::auth::Principal,
+    who: &auth::Principal,
 ) -> Result<GenerateJob, ApiError> {
     let session = model(state)?;
     let vocab = session.vocabulary();
@@ -150,9 +148,9 @@ pub struct GenerateReport {
 /// One-shot generation: every frame, decoded into one motion (SMPL-13 at
 /// the model's frame rate).
 pub async fn generate(
-    state: &AppState,
+    state: &Choreo,
     p: GenerateParams,
-    who: &super::auth::Principal,
+    who: &auth::Principal,
 ) -> Result<(Motion, GenerateReport), ApiError> {
     let mut job = generate_job(state, p, who).await?;
     state
@@ -188,7 +186,7 @@ pub struct StreamFrame {
 }
 
 /// The model's skeleton and frame rate, for streamed frames.
-pub fn stream_format(state: &AppState) -> Result<(String, f64), ApiError> {
+pub fn stream_format(state: &Choreo) -> Result<(String, f64), ApiError> {
     let s = model(state)?;
     let v = s.vocabulary();
     Ok((v.skeleton.clone(), v.fps))
@@ -198,9 +196,9 @@ pub fn stream_format(state: &AppState) -> Result<(String, f64), ApiError> {
 /// decoded. The worker holds a permit and stops when the receiver is
 /// dropped (the client went away).
 pub async fn generate_stream(
-    state: &AppState,
+    state: &Choreo,
     p: GenerateParams,
-    who: &super::auth::Principal,
+    who: &auth::Principal,
 ) -> Result<mpsc::Receiver<Result<StreamFrame, ApiError>>, ApiError> {
     let mut job = generate_job(state, p, who).await?;
     let permit = state
@@ -243,7 +241,7 @@ pub struct DuetSession {
 
 impl DuetSession {
     pub fn open(
-        state: &AppState,
+        state: &Choreo,
         labels: &Labels,
         joints: &[String],
         sampling: Sampling,
@@ -274,29 +272,60 @@ impl DuetSession {
     }
 }
 
-/// Class probabilities per label kind the model classifies.
-pub type Classes = Vec<(String, Vec<(String, f64)>)>;
-
-pub async fn classify(
-    state: &AppState,
-    motion: MotionInput,
-    who: &super::auth::Principal,
-) -> Result<Classes, ApiError> {
-    let session = model(state)?;
-    let m = state.resolve("motion", motion, who).await?;
-    state
-        .heavy("classify", move || {
-            let tokens = session.vocabulary().encode_motion(&m)?;
-            Ok(session.classify(&tokens, MAX_CLASSIFY_WINDOWS)?)
-        })
-        .await
+/// Runs a duet: performer frames (each a one-frame motion, or the
+/// transport's error for a frame it could not read) go in on the sender,
+/// full-body frames come out of the receiver, in order. Each step runs on
+/// the blocking pool. The loop ends when the sender is dropped (the
+/// performer stopped), when the receiver is dropped (the client went away),
+/// or after the first error, which is sent before it ends. REST's
+/// WebSocket and gRPC's `Duet` both run this loop.
+pub fn duet(
+    mut session: DuetSession,
+) -> (
+    mpsc::Sender<Result<Motion, ApiError>>,
+    mpsc::Receiver<Result<StreamFrame, ApiError>>,
+) {
+    let (in_tx, mut in_rx) = mpsc::channel::<Result<Motion, ApiError>>(64);
+    let (out_tx, out_rx) = mpsc::channel(64);
+    tokio::spawn(async move {
+        while let Some(frame) = in_rx.recv().await {
+            let out = match frame {
+                Ok(m) => {
+                    let stepped = tokio::task::spawn_blocking(move || {
+                        let r = session.step(m);
+                        (session, r)
+                    })
+                    .await;
+                    match stepped {
+                        Ok((s, r)) => {
+                            session = s;
+                            r
+                        }
+                        // A failed step takes the session with it: say so, end the duet.
+                        Err(e) => {
+                            let _ = out_tx
+                                .send(Err(ApiError::Internal(format!("duet step failed: {e}"))))
+                                .await;
+                            break;
+                        }
+                    }
+                }
+                Err(e) => Err(e),
+            };
+            let failed = out.is_err();
+            if out_tx.send(out).await.is_err() || failed {
+                break;
+            }
+        }
+    });
+    (in_tx, out_rx)
 }
 
 /// What the loaded model offers a client (`GET /v1/model`): its kind, frame
 /// rate, skeleton (joint names in frame order, parents, rest offsets),
 /// the joints a prompt may force, the label values it was trained on, its
 /// context, and the longest generation a request may ask for.
-pub fn model_info(state: &AppState) -> Result<serde_json::Value, ApiError> {
+pub fn model_info(state: &Choreo) -> Result<serde_json::Value, ApiError> {
     let s = model(state)?;
     let v = s.vocabulary();
     let skeleton = v.skeleton_def().map(|k| skeleton_json(&k));
