@@ -9,7 +9,15 @@
 //! - [`index`] — `AnnIndex`: exact (the oracle) and HNSW, cosine or Euclidean.
 //! - [`tokenize`] — pure: motion ↔ tokens (uniform, quantile, JPEG-like tile
 //!   codec) and the language model vocabulary.
-
+//! - [`keyframes`] — pure: keyframe selection and in-betweens.
+//! - [`store`] — the archive's SQL store (SQLite, PostgreSQL).
+//! - [`search`] — the live searcher over the store: indexes, writes,
+//!   maintenance, the ingest pipeline.
+//! - [`lm`] — the model runtime (tract, onnxruntime), sampling, duet.
+//! - [`service`] — the application core: [`service::Choreo`] and one file
+//!   per use case.
+//! - [`api`] — the transports (REST, WebSocket, gRPC): wire types only.
+//! - [`eval`] — the thesis-table evaluations.
 //!
 //! Reading a motion and asking where its joints are:
 //!
