@@ -93,7 +93,7 @@ pub fn read_motions(
                     ));
                     motions.push((corpus.clone(), m));
                 }
-                Err(e) => eprintln!("skipping {}: {e}", f.display()),
+                Err(e) => tracing::warn!("skipping {}: {e}", f.display()),
             }
         }
         info.corpora.push(corpus.clone());
@@ -175,7 +175,7 @@ pub fn build(
                 match prepared.mirror().and_then(|mm| vocab.encode_motion(&mm)) {
                     Ok(t) => Some(t),
                     Err(e) => {
-                        eprintln!("no mirror for {name}: {e}");
+                        tracing::warn!("no mirror for {name}: {e}");
                         None
                     }
                 }

@@ -284,7 +284,7 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
         if let Some(from) = &run.init_from {
             let (_, t, file): (FrameState, _, _) = super::load_parts(from, &dev)?;
             let fresh = net.params.load_matching(&t, &file)?;
-            eprintln!(
+            tracing::info!(
                 "started from {}; fresh parameters: {}",
                 from.display(),
                 if fresh.is_empty() {
@@ -300,7 +300,7 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
     };
     let s = st.settings.clone();
     let data = FrameData::new(&corpus.train, fl);
-    eprintln!(
+    tracing::info!(
         "frame model: {} parameters; global d {} × {} layers, local d {} × {} layers, context {} frames, change radius {}",
         net.params.count(),
         net.cfg.d_global,
@@ -318,7 +318,7 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
     let mut t_win = std::time::Instant::now();
     while st.step < s.steps {
         if s.max_seconds > 0.0 && spent + t0.elapsed().as_secs_f64() > s.max_seconds {
-            eprintln!("time limit reached at step {}", st.step);
+            tracing::info!("time limit reached at step {}", st.step);
             break;
         }
         opt.lr = super::lr_at(&s, st.step);
@@ -344,7 +344,7 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
                 .iter()
                 .map(|(k, a, n)| format!("{k} {:.1}% of {n}", 100.0 * a))
                 .collect();
-            eprintln!(
+            tracing::info!(
                 "step {:>6}  lr {:.2e}  train {:.1} bits/frame  val {:.1} bits/frame  {:.0} frames/s ({:.0} tokens/s)  {}",
                 st.step,
                 opt.lr,

@@ -217,7 +217,7 @@ pub fn prepare(
                 Ok(s) if s.frames() >= min_frames => s,
                 Ok(_) => continue,
                 Err(e) => {
-                    eprintln!("skipping {}: {e}", m.name);
+                    tracing::warn!("skipping {}: {e}", m.name);
                     continue;
                 }
             };
@@ -238,7 +238,7 @@ pub fn prepare(
                             labels: c.labels.clone(),
                             motion: mm,
                         }),
-                        Err(e) => eprintln!("no mirror for {}: {e}", c.name),
+                        Err(e) => tracing::warn!("no mirror for {}: {e}", c.name),
                     }
                 }
                 train.push(c)

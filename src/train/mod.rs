@@ -5,6 +5,7 @@
 pub mod baselines;
 pub mod data;
 pub mod export;
+pub mod flat_run;
 pub mod frame;
 pub mod frame_export;
 pub mod frame_run;

@@ -3,16 +3,12 @@
 //! model in candle, and exports ONNX + manifest for the server.
 
 use anyhow::{bail, Context, Result};
-use choreo::lm::{bits_per_frame, ModelConfig, Objective, PosScheme};
+use choreo::lm::{bits_per_frame, Objective, PosScheme};
 use choreo::motion::io::{self, ReadOptions};
-use choreo::plot::{render_png, Chart, Line, PALETTE};
 use choreo::train::data::{self, Corpus};
-use choreo::train::model::{AdamW, Gpt};
-use choreo::train::{self as tr, baselines, CheckpointState, LogPoint, RunSettings};
+use choreo::train::model::Gpt;
+use choreo::train::{self as tr, baselines, CheckpointState, RunSettings};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use indicatif::{ProgressBar, ProgressStyle};
-use rand::rngs::StdRng;
-use rand::SeedableRng;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -22,6 +18,7 @@ mod flat;
 mod frame;
 mod inbetween;
 
+use choreo::train::flat_run::{class_values, known_kinds, training_json};
 use corpus::*;
 use flat::*;
 use frame::*;
@@ -343,6 +340,17 @@ struct InbetweenArgs {
 }
 
 fn main() {
+    // The training loops log progress through `tracing`: to standard
+    // error, plain lines (RUST_LOG overrides the level).
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .without_time()
+        .with_target(false)
+        .try_init();
     if let Err(e) = run(Cli::parse()) {
         eprintln!("error: {e:#}");
         std::process::exit(1);
