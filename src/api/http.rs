@@ -1,5 +1,5 @@
-//! REST over axum: JSON in, JSON out; every handler converts and calls the
-//! operation of [`super`].
+//! REST over axum: JSON in ([`bodies`]), JSON out ([`responses`]); every
+//! handler converts and calls one use case of [`crate::service`].
 
 use crate::service::auth::Principal;
 use crate::service::interpolate::InterpolateParams;
@@ -13,16 +13,17 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Extension, Json, Router};
 use base64::Engine;
-use serde_json::json;
 use std::sync::Arc;
 
 pub use crate::motion::io::json::MotionJson;
 
 mod bodies;
 mod middleware;
+pub mod responses;
 
 pub use bodies::*;
 use middleware::*;
+use responses::*;
 
 /// The REST API's OpenAPI 3.1 description (checked in; a test holds it to
 /// the router).
@@ -82,7 +83,7 @@ async fn query(
     State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<QueryBody>, JsonRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<QueryResponse>, ApiError> {
     let b = body(b)?;
     let hits = service::query::query(
         &s,
@@ -99,14 +100,14 @@ async fn query(
         &who,
     )
     .await?;
-    Ok(Json(json!({ "hits": hits })))
+    Ok(Json(QueryResponse { hits }))
 }
 
 async fn interpolate(
     State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<InterpolateBody>, JsonRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<WithOutput<crate::service::interpolate::InterpolateReport>>, ApiError> {
     let b = body(b)?;
     let (m, r) = service::interpolate::interpolate(
         &s,
@@ -122,27 +123,26 @@ async fn interpolate(
         &who,
     )
     .await?;
-    let mut v = serde_json::to_value(&r).map_err(|e| ApiError::Internal(e.to_string()))?;
-    v["output"] = serde_json::to_value(MotionJson::from_motion(&m))
-        .map_err(|e| ApiError::Internal(e.to_string()))?;
-    Ok(Json(v))
+    Ok(Json(WithOutput::new(&m, r)))
 }
 
 async fn lowpass(
     State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<LowpassBody>, JsonRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<LowpassResponse>, ApiError> {
     let b = body(b)?;
     let m = service::lowpass::lowpass(&s, source("motion", b.motion)?, b.cutoff, &who).await?;
-    Ok(Json(json!({ "output": MotionJson::from_motion(&m) })))
+    Ok(Json(LowpassResponse {
+        output: MotionJson::from_motion(&m),
+    }))
 }
 
 async fn keyframes(
     State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<KeyframesBody>, JsonRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<WithOutput<crate::service::keyframes::KeyframeReport>>, ApiError> {
     let b = body(b)?;
     let music = match b.music {
         Some(f) => Some((
@@ -166,30 +166,17 @@ async fn keyframes(
         &who,
     )
     .await?;
-    let mut v = serde_json::to_value(&r).map_err(|e| ApiError::Internal(e.to_string()))?;
-    v["output"] = serde_json::to_value(MotionJson::from_motion(&m))
-        .map_err(|e| ApiError::Internal(e.to_string()))?;
-    Ok(Json(v))
-}
-
-fn summary(r: &crate::store::MotionRow) -> serde_json::Value {
-    let mut v = json!({"id": r.id, "source_path": service::query::public_source(&r.source_path), "format": r.format, "fps": r.fps,
-           "frames": r.frames, "joints": r.joints, "skeleton": r.skeleton,
-           "duration_s": r.duration_s, "labels": r.labels, "collection": r.collection});
-    if let Some(link) = &r.video {
-        v["video"] = json!(link.video);
-        v["video_offset_s"] = json!(link.video_offset_s);
-    }
-    v
+    Ok(Json(WithOutput::new(&m, r)))
 }
 
 async fn list_motions(
     State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<MotionList>, ApiError> {
     let rows = service::motions::list_motions(&s, &who).await?;
-    let motions: Vec<serde_json::Value> = rows.iter().map(summary).collect();
-    Ok(Json(json!({ "motions": motions })))
+    Ok(Json(MotionList {
+        motions: rows.iter().map(MotionSummary::from).collect(),
+    }))
 }
 
 /// The writer of a request (its principal, set by [`require_scope`]) and
@@ -210,7 +197,7 @@ async fn ingest(
     Extension(who): Extension<Principal>,
     headers: HeaderMap,
     b: Result<Json<IngestBody>, JsonRejection>,
-) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
+) -> Result<(StatusCode, Json<IngestResponse>), ApiError> {
     let b = body(b)?;
     if b.video.is_none() && b.video_offset_s.is_some() {
         return Err(ApiError::invalid("video_offset_s", "given without video"));
@@ -233,10 +220,7 @@ async fn ingest(
         service::motions::Stored::New { .. } => StatusCode::CREATED,
         service::motions::Stored::Existing { .. } => StatusCode::OK,
     };
-    Ok((
-        status,
-        Json(serde_json::to_value(stored).map_err(service::internal)?),
-    ))
+    Ok((status, Json(stored)))
 }
 
 fn motion_id(p: Result<Path<i64>, PathRejection>) -> Result<i64, ApiError> {
@@ -252,14 +236,14 @@ async fn get_motion(
     State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     id: Result<Path<i64>, PathRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<MotionResponse>, ApiError> {
     let (row, m) = service::motions::get_motion(&s, motion_id(id)?, &who).await?;
     // The same names as gRPC's GetMotionResponse: `summary` and `motion`.
-    Ok(Json(json!({
-        "summary": summary(&row),
-        "motion": MotionJson::from_motion(&m),
-        "skeleton": service::generate::skeleton_json(&m.skeleton),
-    })))
+    Ok(Json(MotionResponse {
+        summary: MotionSummary::from(&row),
+        motion: MotionJson::from_motion(&m),
+        skeleton: service::generate::skeleton_json(&m.skeleton),
+    }))
 }
 
 /// A download: its content type and file name.
@@ -318,9 +302,9 @@ async fn delete_motion(
 async fn list_collections(
     State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<CollectionList>, ApiError> {
     let names = service::motions::list_collections(&s, &who).await?;
-    Ok(Json(json!({ "collections": names })))
+    Ok(Json(CollectionList { collections: names }))
 }
 
 /// Create a collection (`admin` scope): 201 when new, 200 when it exists.
@@ -329,7 +313,7 @@ async fn create_collection(
     Extension(who): Extension<Principal>,
     headers: HeaderMap,
     b: Result<Json<CollectionBody>, JsonRejection>,
-) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
+) -> Result<(StatusCode, Json<CollectionCreated>), ApiError> {
     let b = body(b)?;
     let created = service::motions::create_collection(&s, &b.name, &actor(&who, &headers)).await?;
     Ok((
@@ -338,7 +322,10 @@ async fn create_collection(
         } else {
             StatusCode::OK
         },
-        Json(json!({ "name": b.name, "created": created })),
+        Json(CollectionCreated {
+            name: b.name,
+            created,
+        }),
     ))
 }
 
@@ -346,45 +333,35 @@ async fn create_collection(
 async fn audit(
     State(s): State<Arc<Choreo>>,
     q: Result<axum::extract::Query<AuditQuery>, axum::extract::rejection::QueryRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<AuditList>, ApiError> {
     let q = q.map_err(|e| ApiError::invalid("limit", e.body_text()))?;
     let entries = service::motions::audit(&s, q.limit).await?;
-    Ok(Json(json!({ "entries": entries })))
+    Ok(Json(AuditList { entries }))
 }
 
 async fn generate(
     State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<GenerateBody>, JsonRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<GenerateResponse>, ApiError> {
     let p = body(b)?.params()?;
     let (m, r) = service::generate::generate(&s, p, &who).await?;
-    Ok(Json(json!({
-        "output": MotionJson::from_motion(&m),
-        "frames": r.frames,
-        "seconds": r.seconds,
-        "real_time_factor": r.real_time_factor,
-    })))
+    Ok(Json(GenerateResponse {
+        output: MotionJson::from_motion(&m),
+        frames: r.frames,
+        seconds: r.seconds,
+        real_time_factor: r.real_time_factor,
+    }))
 }
 
 async fn classify(
     State(s): State<Arc<Choreo>>,
     Extension(who): Extension<Principal>,
     b: Result<Json<ClassifyBody>, JsonRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<ClassifyResponse>, ApiError> {
     let b = body(b)?;
     let c = service::classify::classify(&s, source("motion", b.motion)?, &who).await?;
-    let kinds: Vec<serde_json::Value> = c
-        .iter()
-        .map(|(k, v)| {
-            json!({
-                "kind": k,
-                "label": v.first().map(|x| x.0.clone()),
-                "scores": v.iter().map(|(l, p)| json!({"label": l, "probability": p})).collect::<Vec<_>>(),
-            })
-        })
-        .collect();
-    Ok(Json(json!({ "classes": kinds })))
+    Ok(Json(ClassifyResponse::from(c)))
 }
 
 pub fn router(state: Arc<Choreo>, max_body: usize) -> Router {

@@ -350,6 +350,7 @@ fn main() {
         .with_writer(std::io::stderr)
         .without_time()
         .with_target(false)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
     if let Err(e) = run(Cli::parse()) {
         eprintln!("error: {e:#}");
