@@ -83,7 +83,12 @@ impl Choreo {
                         "an upload needs its file name (the extension gives the format)",
                     ));
                 }
-                read_bytes(&name, &bytes, &read)
+                // Parsing (pickle, npz, BVH, keypoints with their
+                // smoothing) is CPU work: the blocking pool, not a worker
+                // of the async runtime.
+                tokio::task::spawn_blocking(move || read_bytes(&name, &bytes, &read))
+                    .await
+                    .map_err(|e| ApiError::Internal(format!("{field}: reading failed: {e}")))?
                     .map_err(|e| prefix(field, e.into()))?
                     .motion
             }
