@@ -243,7 +243,17 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         if let Ok(emb) = crate::lm::embed::LmEmbedder::new(&m) {
             searcher.set_lm(emb);
         }
-        Some(m)
+        let ex = crate::lm::exemplars::Exemplars::load(&cfg.model, m.vocabulary())
+            .with_context(|| format!("--model {}", cfg.model.display()))?;
+        match &ex {
+            Some(e) => tracing::info!(
+                "{} style exemplars of {:.1} s: a generation with labels and no seed starts from one",
+                e.len(),
+                e.seconds
+            ),
+            None => tracing::info!("no {} beside the model: labels alone condition generation", crate::lm::exemplars::FILE),
+        }
+        Some((m, ex.map(Arc::new)))
     } else {
         tracing::warn!(
             "no model at {}: generate and classify will answer 503 (set --model)",
@@ -285,14 +295,14 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         );
         None
     };
-    let state = Arc::new(Choreo::new(
-        store,
-        searcher,
-        cfg.workers,
-        model,
-        inbetweener,
-        auth,
-    ));
+    let (model, exemplars) = match model {
+        Some((m, ex)) => (Some(m), ex),
+        None => (None, None),
+    };
+    let state = Arc::new(
+        Choreo::new(store, searcher, cfg.workers, model, inbetweener, auth)
+            .with_exemplars(exemplars),
+    );
     state
         .searcher
         .spawn_maintenance(std::time::Duration::from_millis(500));

@@ -549,8 +549,37 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             seed: 7,
             guidance: 0.0,
         }),
+        exemplar: String::new(),
     };
     let one = client.generate(greq.clone()).await.unwrap().into_inner();
+    // The bundled model has style exemplars: labels and no seed motion start
+    // from a real breaking (BR) span, the same one on both transports.
+    let ex = one.exemplar.clone().expect("a style exemplar was used");
+    assert_eq!(rest["exemplar"]["source"], ex.source.as_str(), "{rest}");
+    assert!(ex.source.contains("gBR"), "a BR exemplar: {}", ex.source);
+    assert!(
+        ex.seconds > 0.0
+            && (rest["exemplar"]["seconds"].as_f64().unwrap() - ex.seconds).abs() < 1e-12
+    );
+    // "none" turns it off; anything else is refused, naming the field.
+    let mut plain = greq.clone();
+    plain.exemplar = "none".into();
+    let p = client.generate(plain).await.unwrap().into_inner();
+    assert!(p.exemplar.is_none());
+    assert_ne!(
+        p.output.unwrap().rotations,
+        one.output.as_ref().unwrap().rotations
+    );
+    let bad = json!({"labels": {"genre": "BR"}, "frames": 4, "exemplar": "always"});
+    let (status, e) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&bad)))
+            .await
+            .unwrap();
+    assert_eq!(
+        (status, e["error"]["field"].as_str()),
+        (400, Some("exemplar")),
+        "{e}"
+    );
     let m = one.output.unwrap();
     let rest_rot = flat_rotations(&out["rotations"]);
     // JSON carries decimal text, so the two agree to the last printed digit.
@@ -722,10 +751,12 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .await
     .unwrap();
     for want in [
-        // The prompt request and the top_p 0 one.
+        // The prompt request and the top_p 0 one; the 400s: the bad
+        // exemplar, the bad label and the over-long request; over gRPC the
+        // prompt request, exemplar none and top_p 0.
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 2",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 2",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 2",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 3",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 3",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
     ] {
         assert!(metrics.contains(want), "missing {want} in\n{metrics}");

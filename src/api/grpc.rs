@@ -51,6 +51,11 @@ impl Choreo for ChoreoGrpc {
             frames: r.frames as u32,
             seconds: r.seconds,
             real_time_factor: r.real_time_factor,
+            exemplar: r.exemplar.map(|e| pb::Exemplar {
+                source: e.source,
+                start_s: e.start_s,
+                seconds: e.seconds,
+            }),
         }))
     }
 

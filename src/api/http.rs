@@ -351,6 +351,7 @@ async fn generate(
         frames: r.frames,
         seconds: r.seconds,
         real_time_factor: r.real_time_factor,
+        exemplar: r.exemplar,
     }))
 }
 

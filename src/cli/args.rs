@@ -128,6 +128,10 @@ pub enum Cmd {
     /// Pick keyframes (first and last always kept) and rebuild the
     /// in-betweens; the clip is taken as SMPL-24 at 60 fps.
     Keyframes(super::motion::KeyframesArgs),
+    /// Write a model's style exemplars (exemplars.json): a few seconds of
+    /// real training motion per label value, which seed generations that
+    /// ask for labels.
+    Exemplars(super::exemplars::ExemplarsArgs),
     /// Serve REST and gRPC (see README: API).
     Serve(choreo::server::ServeConfig),
     /// Token file lines for `serve --tokens`: new random tokens, hashes.

@@ -31,6 +31,11 @@ pub enum EvalCmd {
         /// Sampling settings, T:K:P (temperature:top_k:top_p) or greedy.
         #[arg(long, value_delimiter = ',', default_values_t = ["greedy", "1:0:1", "0.9:0:0.95", "0.8:0:0.9"].map(String::from).to_vec())]
         sampling: Vec<String>,
+        /// Seed each clip with one of the model's style exemplars of the
+        /// label (`auto`, what the API does), from nothing (`none`), or
+        /// both rows side by side.
+        #[arg(long, default_value = "both")]
+        exemplar: String,
         #[arg(long)]
         json: bool,
     },
@@ -158,8 +163,11 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             per_label,
             seconds,
             sampling,
+            exemplar,
             json,
-        } => super::eval_generate::run(&model, &data, &labels, per_label, seconds, &sampling, json),
+        } => super::eval_generate::run(
+            &model, &data, &labels, per_label, seconds, &sampling, &exemplar, json,
+        ),
         EvalCmd::Keyframes {
             data,
             bpm,

@@ -48,6 +48,7 @@ pub fn run(
     per_label: usize,
     seconds: f64,
     samplings: &[String],
+    exemplar: &str,
     json: bool,
 ) -> Result<()> {
     if per_label == 0 {
@@ -61,12 +62,26 @@ pub fn run(
         .iter()
         .map(|s| parse_sampling(s))
         .collect::<Result<Vec<_>>>()?;
+    let exemplar_modes = match exemplar {
+        "none" => vec![false],
+        "auto" => vec![true],
+        "both" => vec![false, true],
+        o => bail!("--exemplar: '{o}' is not none, auto or both"),
+    };
+    let exemplars = choreo::lm::exemplars::Exemplars::load(model, m.vocabulary())
+        .with_context(|| format!("--model {}", model.display()))?;
     let o = GenOptions {
         label_kind: labels.to_string(),
         per_label,
         seconds,
         samplings,
         val_fraction: 0.1,
+        exemplar_modes: match (&exemplars, exemplar) {
+            // Without exemplars, `both` measures the one mode there is.
+            (None, "both") => vec![false],
+            _ => exemplar_modes,
+        },
+        exemplars,
     };
     let rows = eval_generate(&m, data, &o, &mut |line| eprintln!("{line}"))?;
     if json {

@@ -11,6 +11,7 @@ pub mod bench_model;
 pub mod dev;
 pub mod eval;
 pub mod eval_generate;
+pub mod exemplars;
 pub mod footage;
 pub mod motion;
 pub mod token;
@@ -59,6 +60,7 @@ pub fn run(cli: args::Cli) -> anyhow::Result<()> {
         Cmd::Lowpass(a) => motion::lowpass_cmd(a),
         Cmd::Bench { cmd } => bench::run(cmd),
         Cmd::Eval { cmd } => eval::run(cmd),
+        Cmd::Exemplars(a) => exemplars::run(a),
         Cmd::Footage { cmd } => footage::run(cmd),
         Cmd::Token { cmd } => token::run(cmd),
         Cmd::Serve(cfg) => {

@@ -64,6 +64,11 @@ pub struct GenOptions {
     pub seconds: f64,
     pub samplings: Vec<Sampling>,
     pub val_fraction: f64,
+    /// The model's style exemplars, and whether each row seeds with one
+    /// (`false`: from nothing, `true`: an exemplar of the label): every
+    /// sampling runs once per entry.
+    pub exemplars: Option<crate::lm::exemplars::Exemplars>,
+    pub exemplar_modes: Vec<bool>,
 }
 
 /// A sampling setting as a row names it.
@@ -254,9 +259,59 @@ fn diversity(rows: &[Vec<f64>], reference: &[Vec<f64>]) -> f64 {
 }
 
 /// A real clip of the folder: its name, labels and tokens.
-struct RealClip {
-    labels: Labels,
-    tokens: Vec<u32>,
+/// A real sequence, tokenized.
+pub struct RealClip {
+    pub name: String,
+    pub labels: Labels,
+    pub tokens: Vec<u32>,
+}
+
+/// Every readable motion under `data` (labels from the file name when the
+/// file has none), tokenized, and split as the trainer splits a corpus:
+/// ordered by a hash of the name, the first `val_fraction` (at least one)
+/// held out. Returns (held out, training).
+pub fn read_split(
+    vocab: &Vocabulary,
+    data: &Path,
+    val_fraction: f64,
+    say: &mut dyn FnMut(String),
+) -> anyhow::Result<(Vec<RealClip>, Vec<RealClip>)> {
+    let mut clips: Vec<(String, RealClip)> = Vec::new();
+    for f in crate::data::files_with_ext(data, &["pkl", "npz", "bvh"]) {
+        match read_path(&f, &ReadOptions::default()) {
+            Ok(l) => {
+                let mut m = l.motion;
+                if m.labels.is_empty() {
+                    m.labels = from_name(&m.name);
+                }
+                let tokens = vocab.prepare(&m).and_then(|p| vocab.encode_motion(&p));
+                match tokens {
+                    Ok(t) if !t.is_empty() => clips.push((
+                        sha256_hex(m.name.as_bytes()),
+                        RealClip {
+                            name: m.name,
+                            labels: m.labels,
+                            tokens: t,
+                        },
+                    )),
+                    Ok(_) => {}
+                    Err(e) => say(format!("skipping {}: {e}", f.display())),
+                }
+            }
+            Err(e) => say(format!("skipping {}: {e}", f.display())),
+        }
+    }
+    if clips.is_empty() {
+        anyhow::bail!("data: no readable motion under {}", data.display());
+    }
+    clips.sort_by(|a, b| a.0.cmp(&b.0));
+    let n_val = crate::data::held_out_count(clips.len(), val_fraction);
+    let (val, train): (Vec<_>, Vec<_>) =
+        clips.into_iter().enumerate().partition(|(i, _)| *i < n_val);
+    Ok((
+        val.into_iter().map(|(_, c)| c.1).collect(),
+        train.into_iter().map(|(_, c)| c.1).collect(),
+    ))
 }
 
 fn mean(x: impl Iterator<Item = f64>) -> f64 {
@@ -282,40 +337,7 @@ pub fn eval_generate(
         );
     }
     let known = vocab.labels.get(kind).cloned().unwrap_or_default();
-    // Read, tokenize and split like the trainer.
-    let mut clips: Vec<(String, RealClip)> = Vec::new();
-    for f in crate::data::files_with_ext(data, &["pkl", "npz", "bvh"]) {
-        match read_path(&f, &ReadOptions::default()) {
-            Ok(l) => {
-                let mut m = l.motion;
-                if m.labels.is_empty() {
-                    m.labels = from_name(&m.name);
-                }
-                let tokens = vocab.prepare(&m).and_then(|p| vocab.encode_motion(&p));
-                match tokens {
-                    Ok(t) if !t.is_empty() => clips.push((
-                        sha256_hex(m.name.as_bytes()),
-                        RealClip {
-                            labels: m.labels,
-                            tokens: t,
-                        },
-                    )),
-                    Ok(_) => {}
-                    Err(e) => say(format!("skipping {}: {e}", f.display())),
-                }
-            }
-            Err(e) => say(format!("skipping {}: {e}", f.display())),
-        }
-    }
-    if clips.is_empty() {
-        anyhow::bail!("data: no readable motion under {}", data.display());
-    }
-    clips.sort_by(|a, b| a.0.cmp(&b.0));
-    let n_val = crate::data::held_out_count(clips.len(), o.val_fraction);
-    let (val, train): (Vec<_>, Vec<_>) =
-        clips.into_iter().enumerate().partition(|(i, _)| *i < n_val);
-    let val: Vec<RealClip> = val.into_iter().map(|(_, c)| c.1).collect();
-    let train: Vec<RealClip> = train.into_iter().map(|(_, c)| c.1).collect();
+    let (val, train) = read_split(&vocab, data, o.val_fraction, say)?;
     let seg = (o.seconds * vocab.fps).round().max(4.0) as usize;
     let segments = |cs: &[RealClip]| -> Vec<(String, Vec<u32>)> {
         let mut out = Vec::new();
@@ -400,7 +422,17 @@ pub fn eval_generate(
     let real_jerk = mean(real.iter().map(|r| r.1.jerk));
     let real_skate = mean(real.iter().map(|r| r.1.skate));
     let mut rows = Vec::new();
-    for sampling in &o.samplings {
+    if o.exemplar_modes.contains(&true) && o.exemplars.is_none() {
+        anyhow::bail!(
+            "exemplar: the model folder has no exemplars.json (make one with choreo exemplars)"
+        );
+    }
+    let runs: Vec<(&Sampling, bool)> = o
+        .samplings
+        .iter()
+        .flat_map(|s| o.exemplar_modes.iter().map(move |&e| (s, e)))
+        .collect();
+    for (sampling, with_exemplar) in runs {
         let t0 = std::time::Instant::now();
         let mut gen: Vec<(String, ClipStats)> = Vec::new();
         for v in &values {
@@ -409,7 +441,11 @@ pub fn eval_generate(
             for i in 0..o.per_label {
                 let mut s = sampling.clone();
                 s.seed = sampling.seed.wrapping_add(i as u64);
-                let mut g = model.generator(&labels, &[], s)?;
+                let seed: &[u32] = match (&o.exemplars, with_exemplar) {
+                    (Some(ex), true) => ex.pick(&labels, s.seed).map_or(&[][..], |p| p.1),
+                    _ => &[],
+                };
+                let mut g = model.generator(&labels, seed, s)?;
                 let mut toks = Vec::with_capacity(seg * fl);
                 let free = vec![None; fl];
                 for _ in 0..seg {
@@ -434,7 +470,11 @@ pub fn eval_generate(
         let refs: Vec<(String, &ClipStats)> = gen.iter().map(|(v, s)| (v.clone(), s)).collect();
         rows.push(GenRow {
             label_kind: kind.clone(),
-            sampling: sampling_name(sampling),
+            sampling: if with_exemplar {
+                format!("{} +exemplar", sampling_name(sampling))
+            } else {
+                sampling_name(sampling)
+            },
             labels: values.len(),
             clips: gen.len(),
             fid_k: fid(&rk, &gk),

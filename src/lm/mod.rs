@@ -20,6 +20,7 @@
 pub mod duet;
 pub mod embed;
 pub mod engine;
+pub mod exemplars;
 pub mod frame;
 pub mod frame_runtime;
 pub mod generate;

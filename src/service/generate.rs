@@ -52,6 +52,19 @@ pub struct GenerateParams {
     /// A motion the generation continues.
     pub seed_motion: Option<MotionInput>,
     pub sampling: Sampling,
+    /// `auto` or empty (a style exemplar of the labels seeds a generation
+    /// that has labels and no seed motion), or `none`.
+    pub exemplar: String,
+}
+
+/// The style exemplar a generation started from (context only, not in
+/// the output).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ExemplarUsed {
+    /// The training sequence it was cut from.
+    pub source: String,
+    pub start_s: f64,
+    pub seconds: f64,
 }
 
 /// A generation ready to run: the generator and the forced slots.
@@ -61,6 +74,7 @@ pub struct GenerateJob {
     forced: Vec<Vec<Option<u32>>>,
     pub frames: usize,
     pub labels: Labels,
+    pub exemplar: Option<ExemplarUsed>,
 }
 
 impl GenerateJob {
@@ -117,9 +131,33 @@ pub async fn generate_job(
             Vec::new()
         }
     };
-    let seed = match p.seed_motion {
-        Some(input) => vocab.encode_motion(&state.resolve("seed_motion", input, who).await?)?,
-        None => Vec::new(),
+    let use_exemplar = match p.exemplar.as_str() {
+        "" | "auto" => true,
+        "none" => false,
+        o => {
+            return Err(ApiError::invalid(
+                "exemplar",
+                format!("'{o}' is not auto or none"),
+            ))
+        }
+    };
+    let (seed, exemplar) = match (p.seed_motion, &state.exemplars) {
+        (Some(input), _) => (
+            vocab.encode_motion(&state.resolve("seed_motion", input, who).await?)?,
+            None,
+        ),
+        (None, Some(ex)) if use_exemplar => match ex.pick(&p.labels, p.sampling.seed) {
+            Some((e, tokens)) => (
+                tokens.to_vec(),
+                Some(ExemplarUsed {
+                    source: e.source.clone(),
+                    start_s: e.start_frame as f64 / ex.fps,
+                    seconds: e.frames as f64 / ex.fps,
+                }),
+            ),
+            None => (Vec::new(), None),
+        },
+        _ => (Vec::new(), None),
     };
     let frames = match (p.frames, forced.len()) {
         (0, 0) => DEFAULT_GENERATE_FRAMES,
@@ -133,6 +171,7 @@ pub async fn generate_job(
         forced,
         frames,
         labels: p.labels,
+        exemplar,
     })
 }
 
@@ -143,6 +182,8 @@ pub struct GenerateReport {
     pub seconds: f64,
     /// Motion seconds produced per wall-clock second.
     pub real_time_factor: f64,
+    /// The style exemplar it started from, if any.
+    pub exemplar: Option<ExemplarUsed>,
 }
 
 /// One-shot generation: every frame, decoded into one motion (SMPL-13 at
@@ -168,6 +209,7 @@ pub async fn generate(
                 frames: job.frames,
                 seconds: secs,
                 real_time_factor: job.frames as f64 / vocab.fps / secs.max(1e-9),
+                exemplar: job.exemplar.clone(),
             };
             Ok((m, report))
         })

@@ -52,6 +52,9 @@ pub struct Choreo {
     pub light: Arc<Semaphore>,
     /// The motion language model, when one is installed.
     pub model: Option<crate::lm::model::MotionModel>,
+    /// The model's style exemplars (`exemplars.json` beside it), when it has
+    /// them: a generation with labels and no seed starts from one.
+    pub exemplars: Option<Arc<crate::lm::exemplars::Exemplars>>,
     /// The learned in-betweener, when one is installed.
     pub inbetweener: Option<Arc<crate::lm::inbetween::Inbetweener>>,
     /// Request counts and latencies for `/metrics`.
@@ -76,9 +79,19 @@ impl Choreo {
                 std::thread::available_parallelism().map_or(2, |n| n.get()),
             )),
             model,
+            exemplars: None,
             inbetweener,
             metrics: Default::default(),
         }
+    }
+
+    /// The same core with the model's style exemplars.
+    pub fn with_exemplars(
+        mut self,
+        exemplars: Option<Arc<crate::lm::exemplars::Exemplars>>,
+    ) -> Choreo {
+        self.exemplars = exemplars;
+        self
     }
 
     /// The live searcher.

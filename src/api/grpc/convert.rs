@@ -114,6 +114,7 @@ pub(super) fn generate_params(
             .map(|p| source("seed_motion", Some(p)))
             .transpose()?,
         sampling: sampling(r.sampling),
+        exemplar: r.exemplar,
     })
 }
 

@@ -220,6 +220,9 @@ pub struct GenerateBody {
     pub seed_motion: Option<SourceJson>,
     #[serde(default)]
     pub sampling: SamplingJson,
+    /// `auto` (the default) or `none`.
+    #[serde(default)]
+    pub exemplar: String,
 }
 
 impl GenerateBody {
@@ -235,6 +238,7 @@ impl GenerateBody {
                 .map(|x| source("seed_motion", Some(x)))
                 .transpose()?,
             sampling: self.sampling.to_sampling(),
+            exemplar: self.exemplar,
         })
     }
 }

@@ -125,6 +125,9 @@ pub struct GenerateResponse {
     pub frames: usize,
     pub seconds: f64,
     pub real_time_factor: f64,
+    /// The style exemplar the generation started from, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub exemplar: Option<service::generate::ExemplarUsed>,
 }
 
 /// One label's probability.

@@ -1,0 +1,103 @@
+//! `choreo exemplars`: writes a model's style exemplars (see
+//! `choreo::lm::exemplars`) from the training side of corpus folders.
+
+use anyhow::{bail, Context, Result};
+use choreo::eval::generate::read_split;
+use choreo::lm::exemplars::Exemplars;
+use choreo::lm::model::MotionModel;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct ExemplarsArgs {
+    /// The model folder; exemplars.json is written into it.
+    #[arg(long, default_value = "models/default")]
+    pub model: PathBuf,
+    /// Corpus folders (repeatable), each split as the trainer splits it:
+    /// only its training sequences give exemplars.
+    #[arg(long, required = true)]
+    pub data: Vec<PathBuf>,
+    /// Seconds per exemplar (at most the model's context).
+    #[arg(long, default_value_t = 5.0)]
+    pub seconds: f64,
+    /// Exemplars per label value.
+    #[arg(long, default_value_t = 3)]
+    pub per_label: usize,
+    /// Label kinds to cover (default: every kind the model is conditioned on).
+    #[arg(long = "kind")]
+    pub kinds: Vec<String>,
+}
+
+pub fn run(a: ExemplarsArgs) -> Result<()> {
+    let m =
+        MotionModel::load(&a.model).with_context(|| format!("--model {}", a.model.display()))?;
+    let vocab = m.vocabulary().clone();
+    let max_s = m.context_frames() as f64 / vocab.fps;
+    if !(a.seconds > 0.0 && a.seconds <= max_s) {
+        bail!(
+            "--seconds: {} (want 0 < s ≤ {max_s}, the model's context)",
+            a.seconds
+        );
+    }
+    if a.per_label == 0 {
+        bail!("--per-label must be at least 1");
+    }
+    let kinds: Vec<String> = if a.kinds.is_empty() {
+        m.cond_kinds().to_vec()
+    } else {
+        for k in &a.kinds {
+            if !m.cond_kinds().contains(k) {
+                bail!(
+                    "--kind {k}: the model is conditioned on {}",
+                    m.cond_kinds().join(", ")
+                );
+            }
+        }
+        a.kinds.clone()
+    };
+    let mut sequences = Vec::new();
+    for d in &a.data {
+        let (val, train) = read_split(&vocab, d, 0.1, &mut |line| eprintln!("{line}"))
+            .with_context(|| format!("--data {}", d.display()))?;
+        eprintln!(
+            "{}: {} training sequences ({} held out, not used)",
+            d.display(),
+            train.len(),
+            val.len()
+        );
+        sequences.extend(train.into_iter().map(|c| (c.name, c.labels, c.tokens)));
+    }
+    let ex = Exemplars::build(&sequences, &vocab, &kinds, a.seconds, a.per_label);
+    if ex.is_empty() {
+        bail!("--data: no training sequence carries a label of {kinds:?} the model knows");
+    }
+    ex.save(&a.model).with_context(|| {
+        format!(
+            "writing {}",
+            a.model.join(choreo::lm::exemplars::FILE).display()
+        )
+    })?;
+    let mut covered: std::collections::BTreeMap<&str, std::collections::BTreeSet<&str>> =
+        Default::default();
+    for it in &ex.items {
+        for k in &kinds {
+            if let Some(v) = it.labels.get(k) {
+                covered.entry(k).or_default().insert(v);
+            }
+        }
+    }
+    let summary: Vec<String> = covered
+        .iter()
+        .map(|(k, vs)| {
+            let known = vocab.labels.get(*k).map_or(0, |s| s.len());
+            format!("{k} {}/{known}", vs.len())
+        })
+        .collect();
+    println!(
+        "{} exemplars of {:.1} s written to {}; label values covered: {}",
+        ex.len(),
+        ex.seconds,
+        a.model.join(choreo::lm::exemplars::FILE).display(),
+        summary.join(", ")
+    );
+    Ok(())
+}

@@ -1,0 +1,264 @@
+//! Style exemplars: short spans of real *training* motion, kept beside a
+//! model, one or more per label value. A generation that asks for labels
+//! and gives no seed motion is seeded with one of them (the span is context
+//! only: it is not part of the output).
+//!
+//! Why: the frame model predicts the next frame almost entirely from the
+//! frames before it, and its labels are worth a fraction of a bit per frame
+//! (README, "What the labels are worth"), so labels alone do not steer what
+//! it generates. A few seconds of real motion of the asked-for style do:
+//! the model continues them. `choreo eval generate --exemplar` measures the
+//! two side by side.
+//!
+//! The file (`exemplars.json` in the model folder) is written by `choreo
+//! exemplars`, which takes the spans only from the sequences the trainer
+//! trained on (per corpus folder, the trainer's split: the first 10 % by a
+//! hash of the name are held out), so held-out evaluations never see them.
+
+use super::LmError;
+use crate::lm::manifest::sha256_hex;
+use crate::motion::Labels;
+use crate::tokenize::vocab::Vocabulary;
+use base64::Engine;
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+/// The file name inside a model folder.
+pub const FILE: &str = "exemplars.json";
+
+/// One span: where it came from, its labels, and its frame tokens.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Exemplar {
+    /// The source sequence's name (a file stem).
+    pub source: String,
+    /// Every label of the source sequence.
+    pub labels: Labels,
+    /// First frame of the span in the source (at the model's frame rate).
+    pub start_frame: usize,
+    pub frames: usize,
+    /// Whole frames of tokens, little-endian u16, base64.
+    pub tokens: String,
+}
+
+impl Exemplar {
+    /// The span's tokens.
+    pub fn decode(&self) -> Result<Vec<u32>, String> {
+        let bytes = base64::engine::general_purpose::STANDARD
+            .decode(self.tokens.as_bytes())
+            .map_err(|e| format!("tokens: {e}"))?;
+        if bytes.len() % 2 != 0 {
+            return Err("tokens: an odd number of bytes".into());
+        }
+        Ok(bytes
+            .chunks_exact(2)
+            .map(|b| u16::from_le_bytes([b[0], b[1]]) as u32)
+            .collect())
+    }
+
+    fn encode(tokens: &[u32]) -> String {
+        let bytes: Vec<u8> = tokens
+            .iter()
+            .flat_map(|&t| (t as u16).to_le_bytes())
+            .collect();
+        base64::engine::general_purpose::STANDARD.encode(bytes)
+    }
+}
+
+/// A model's exemplars.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Exemplars {
+    /// The model's frame rate and tokens per frame (checked at load).
+    pub fps: f64,
+    pub frame_len: usize,
+    /// Seconds of each span.
+    pub seconds: f64,
+    pub items: Vec<Exemplar>,
+    /// Decoded tokens, one per item.
+    #[serde(skip)]
+    decoded: Vec<Vec<u32>>,
+}
+
+impl Exemplars {
+    /// The exemplars of a model folder, if it has any. A file that does not
+    /// fit the model's vocabulary (frame rate, frame length, token range)
+    /// is an error that names the field.
+    pub fn load(dir: &Path, vocab: &Vocabulary) -> Result<Option<Exemplars>, LmError> {
+        let path = if dir.is_dir() {
+            dir.join(FILE)
+        } else {
+            dir.with_file_name(FILE)
+        };
+        if !path.exists() {
+            return Ok(None);
+        }
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(&path).map_err(|e| LmError::Io {
+            file: name.clone(),
+            reason: e.to_string(),
+        })?;
+        let mut ex: Exemplars = serde_json::from_str(&text)
+            .map_err(|e| LmError::invalid(&name, "exemplars", e.to_string()))?;
+        if (ex.fps - vocab.fps).abs() > 1e-9 {
+            return Err(LmError::invalid(
+                &name,
+                "fps",
+                format!("{} but the model runs at {} fps", ex.fps, vocab.fps),
+            ));
+        }
+        if ex.frame_len != vocab.frame_len() {
+            return Err(LmError::invalid(
+                &name,
+                "frame_len",
+                format!(
+                    "{} but the model's frames are {} tokens",
+                    ex.frame_len,
+                    vocab.frame_len()
+                ),
+            ));
+        }
+        let mut decoded = Vec::with_capacity(ex.items.len());
+        for (i, it) in ex.items.iter().enumerate() {
+            let field = format!("items[{i}].tokens");
+            let t = it
+                .decode()
+                .map_err(|e| LmError::invalid(&name, &field, e))?;
+            if t.is_empty() || t.len() != it.frames * ex.frame_len {
+                return Err(LmError::invalid(
+                    &name,
+                    &field,
+                    format!(
+                        "{} tokens for {} frames of {}",
+                        t.len(),
+                        it.frames,
+                        ex.frame_len
+                    ),
+                ));
+            }
+            if let Some(bad) = t.iter().find(|&&x| x as usize >= vocab.size()) {
+                return Err(LmError::invalid(
+                    &name,
+                    &field,
+                    format!("token {bad} is outside the vocabulary ({})", vocab.size()),
+                ));
+            }
+            decoded.push(t);
+        }
+        ex.decoded = decoded;
+        Ok(Some(ex))
+    }
+
+    /// Writes `exemplars.json` into a model folder.
+    pub fn save(&self, dir: &Path) -> std::io::Result<()> {
+        let text = serde_json::to_string(self).map_err(std::io::Error::other)?;
+        std::fs::write(dir.join(FILE), text)
+    }
+
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    /// The exemplar for `labels`: among the spans whose source carries the
+    /// most of the asked-for labels (at least one), the one `seed` picks.
+    /// None when `labels` is empty or no span shares any of them.
+    pub fn pick(&self, labels: &Labels, seed: u64) -> Option<(&Exemplar, &[u32])> {
+        if labels.is_empty() {
+            return None;
+        }
+        let score = |e: &Exemplar| {
+            labels
+                .iter()
+                .filter(|(k, v)| e.labels.get(*k) == Some(*v))
+                .count()
+        };
+        let best = self.items.iter().map(score).max().unwrap_or(0);
+        if best == 0 {
+            return None;
+        }
+        let pool: Vec<usize> = (0..self.items.len())
+            .filter(|&i| score(&self.items[i]) == best)
+            .collect();
+        let i = pool[(splitmix(seed) % pool.len() as u64) as usize];
+        Some((&self.items[i], &self.decoded[i]))
+    }
+
+    /// Builds exemplars from training sequences (name, labels, frame
+    /// tokens): for every label value of `kinds`, up to `per_label`
+    /// sequences (in the order of a hash of their names, so the choice does
+    /// not depend on file order), each giving one span of `seconds` from a
+    /// third of the way in (the start of a take is often a still pose).
+    /// A sequence chosen for several values is stored once.
+    pub fn build(
+        sequences: &[(String, Labels, Vec<u32>)],
+        vocab: &Vocabulary,
+        kinds: &[String],
+        seconds: f64,
+        per_label: usize,
+    ) -> Exemplars {
+        let fl = vocab.frame_len();
+        let len = ((seconds * vocab.fps).round() as usize).max(1);
+        let mut order: Vec<usize> = (0..sequences.len()).collect();
+        order.sort_by_key(|&i| sha256_hex(sequences[i].0.as_bytes()));
+        let mut chosen: BTreeSet<usize> = BTreeSet::new();
+        let mut counts: BTreeMap<(String, String), usize> = BTreeMap::new();
+        for &i in &order {
+            let (_, labels, tokens) = &sequences[i];
+            if tokens.len() / fl < len {
+                continue;
+            }
+            let mut wanted = false;
+            for k in kinds {
+                if let Some(v) = labels.get(k) {
+                    let known = vocab.labels.get(k).is_some_and(|s| s.contains(v));
+                    let c = counts.entry((k.clone(), v.clone())).or_default();
+                    if known && *c < per_label {
+                        *c += 1;
+                        wanted = true;
+                    }
+                }
+            }
+            if wanted {
+                chosen.insert(i);
+            }
+        }
+        let mut items = Vec::new();
+        let mut decoded = Vec::new();
+        for i in chosen {
+            let (name, labels, tokens) = &sequences[i];
+            let n = tokens.len() / fl;
+            let st = (n - len) / 3;
+            let span = tokens[st * fl..(st + len) * fl].to_vec();
+            items.push(Exemplar {
+                source: name.clone(),
+                labels: labels.clone(),
+                start_frame: st,
+                frames: len,
+                tokens: Exemplar::encode(&span),
+            });
+            decoded.push(span);
+        }
+        Exemplars {
+            fps: vocab.fps,
+            frame_len: fl,
+            seconds: len as f64 / vocab.fps,
+            items,
+            decoded,
+        }
+    }
+}
+
+/// A well-mixed index from a request's seed (consecutive seeds pick
+/// unrelated exemplars).
+fn splitmix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^ (x >> 31)
+}
+
+#[cfg(test)]
+mod tests;
