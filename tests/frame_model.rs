@@ -305,6 +305,8 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         seconds: 2.0,
         samplings: vec![Sampling::default(), Sampling::recommended(1)],
         val_fraction: 0.1,
+        exemplars: None,
+        exemplar_modes: vec![false],
     };
     let mut said = Vec::new();
     let rows = eval_generate(&model, &dir, &o, &mut |l| said.push(l)).unwrap();
@@ -325,6 +327,56 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
     // Each row names its sampling.
     assert_eq!(rows[0].sampling, "greedy");
     assert_eq!(rows[1].sampling, "t=1 top_k=0 top_p=0.95");
+    // Style exemplars from the training side only: none of their sources
+    // is a held-out clip; rows with and without them, side by side.
+    let (val, train) =
+        choreo::eval::generate::read_split(model.vocabulary(), &dir, 0.1, &mut |_| {}).unwrap();
+    let seqs: Vec<_> = train
+        .into_iter()
+        .map(|c| (c.name, c.labels, c.tokens))
+        .collect();
+    let ex = choreo::lm::exemplars::Exemplars::build(
+        &seqs,
+        model.vocabulary(),
+        &["genre".to_string()],
+        1.0,
+        1,
+    );
+    assert!(!ex.is_empty());
+    assert!(ex
+        .items
+        .iter()
+        .all(|e| val.iter().all(|v| v.name != e.source)));
+    let with = GenOptions {
+        label_kind: "genre".into(),
+        per_label: 1,
+        seconds: 2.0,
+        samplings: vec![Sampling::recommended(1)],
+        val_fraction: 0.1,
+        exemplars: Some(ex),
+        exemplar_modes: vec![false, true],
+    };
+    let rows2 = eval_generate(&model, &dir, &with, &mut |_| {}).unwrap();
+    let names: Vec<&str> = rows2.iter().map(|r| r.sampling.as_str()).collect();
+    assert_eq!(
+        names,
+        ["t=1 top_k=0 top_p=0.95", "t=1 top_k=0 top_p=0.95 +exemplar"]
+    );
+    // Asking for exemplars the model does not have is an error.
+    let missing = GenOptions {
+        label_kind: "genre".into(),
+        per_label: 1,
+        seconds: 2.0,
+        samplings: vec![Sampling::recommended(1)],
+        val_fraction: 0.1,
+        exemplars: None,
+        exemplar_modes: vec![true],
+    };
+    let e = eval_generate(&model, &dir, &missing, &mut |_| {})
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("exemplars.json"), "{e}");
     // Bad input: a kind the model is not conditioned on; an empty folder.
     let bad = GenOptions {
         label_kind: "dancer".into(),
@@ -342,6 +394,8 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         seconds: 2.0,
         samplings: vec![Sampling::default()],
         val_fraction: 0.1,
+        exemplars: None,
+        exemplar_modes: vec![false],
     };
     let e = eval_generate(&model, empty.path(), &o2, &mut |_| {})
         .err()
