@@ -214,6 +214,23 @@ async fn websocket_generate_streams_what_rest_returns_and_stops_with_the_client(
         }
     }
 
+    // With labels, the stream starts from the style exemplar the one-shot
+    // call names.
+    let labelled = json!({"labels": {"genre": "BR"}, "frames": 2, "sampling": {"seed": 3}});
+    let mut ws = connect(h, "/v1/generate/ws").await;
+    ws.send(Message::Text(labelled.to_string().into()))
+        .await
+        .unwrap();
+    let start_msg = recv(&mut ws).await.unwrap();
+    let (status, rest) = rest_generate(h, labelled).await;
+    assert_eq!(status, 200, "{rest}");
+    assert!(rest["exemplar"]["source"].is_string(), "{rest}");
+    assert_eq!(
+        start_msg["start"]["exemplar"], rest["exemplar"],
+        "{start_msg}"
+    );
+    drop(ws);
+
     // Not JSON: an error naming the body, then the close.
     let mut bad = connect(h, "/v1/generate/ws").await;
     bad.send(Message::Text("{frames: 3".into())).await.unwrap();

@@ -13,7 +13,7 @@
 
 mod support;
 
-use choreo::motion::io::json::MotionJson;
+use choreo::api::http::MotionJson;
 use choreo::motion::{Motion, Skeleton};
 use choreo::server::start;
 use serde_json::Value;

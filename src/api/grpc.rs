@@ -68,7 +68,9 @@ impl Choreo for ChoreoGrpc {
             .authorize(bearer(&req), Scope::Read, peer(&req))?;
         let p = generate_params(req.into_inner())?;
         let (skeleton, fps) = service::generate::stream_format(&self.state)?;
-        let rx = service::generate::generate_stream(&self.state, p, &who).await?;
+        let rx = service::generate::generate_stream(&self.state, p, &who)
+            .await?
+            .frames;
         let out = tokio_stream::wrappers::ReceiverStream::new(rx).map(move |r| {
             r.map(|f| frame_pb(&f, &skeleton, fps))
                 .map_err(Status::from)

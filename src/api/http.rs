@@ -15,10 +15,10 @@ use axum::{Extension, Json, Router};
 use base64::Engine;
 use std::sync::Arc;
 
-pub use crate::motion::io::json::MotionJson;
-
 mod bodies;
 mod middleware;
+pub mod motion;
+pub use motion::MotionJson;
 pub mod responses;
 
 pub use bodies::*;

@@ -19,8 +19,8 @@
 //! generation worker sees its channel dropped), so no task outlives the
 //! socket.
 
+use super::http::MotionJson;
 use super::http::{decode_error, GenerateBody, SamplingJson};
-use crate::motion::io::json::MotionJson;
 use crate::motion::Labels;
 use crate::service::generate::{self as lm, StreamFrame};
 use crate::service::{self, ApiError, Choreo};
@@ -116,17 +116,17 @@ async fn generate_socket(state: Arc<Choreo>, mut socket: WebSocket, who: service
     let started = Instant::now();
     let rx = async {
         let (skeleton, fps) = lm::stream_format(&state)?;
-        let rx = lm::generate_stream(&state, body.params()?, &who).await?;
-        Ok::<_, ApiError>((skeleton, fps, rx))
+        let s = lm::generate_stream(&state, body.params()?, &who).await?;
+        Ok::<_, ApiError>((skeleton, fps, s.exemplar, s.frames))
     }
     .await;
-    let (skeleton, fps, mut rx) = match rx {
+    let (skeleton, fps, exemplar, mut rx) = match rx {
         Ok(x) => x,
         Err(e) => return fail(socket, e).await,
     };
     if !send(
         &mut socket,
-        &json!({"start": {"skeleton": skeleton, "fps": fps}}),
+        &json!({"start": {"skeleton": skeleton, "fps": fps, "exemplar": exemplar}}),
     )
     .await
     {
@@ -212,7 +212,10 @@ async fn duet_socket(state: Arc<Choreo>, mut socket: WebSocket) {
                 Err(e) => return fail(socket, e).await,
             },
         };
-        let motion = match service::input::motion_from_json("frame", frame) {
+        let motion = match frame
+            .into_parts("frame")
+            .and_then(|p| service::input::motion_from_parts("frame", p))
+        {
             Ok(m) => m,
             Err(e) => return fail(socket, e).await,
         };

@@ -237,12 +237,20 @@ pub fn stream_format(state: &Choreo) -> Result<(String, f64), ApiError> {
 /// Streaming generation: frames arrive on the channel as soon as each is
 /// decoded. The worker holds a permit and stops when the receiver is
 /// dropped (the client went away).
+/// A started stream: the style exemplar it starts from, if any, and its
+/// frames.
+pub struct FrameStream {
+    pub exemplar: Option<ExemplarUsed>,
+    pub frames: mpsc::Receiver<Result<StreamFrame, ApiError>>,
+}
+
 pub async fn generate_stream(
     state: &Choreo,
     p: GenerateParams,
     who: &auth::Principal,
-) -> Result<mpsc::Receiver<Result<StreamFrame, ApiError>>, ApiError> {
+) -> Result<FrameStream, ApiError> {
     let mut job = generate_job(state, p, who).await?;
+    let exemplar = job.exemplar.clone();
     let permit = state
         .workers
         .clone()
@@ -271,7 +279,10 @@ pub async fn generate_stream(
             }
         }
     });
-    Ok(rx)
+    Ok(FrameStream {
+        exemplar,
+        frames: rx,
+    })
 }
 
 /// A live duet ([`crate::lm::duet::Duet`]) holding a worker permit for

@@ -3,7 +3,7 @@
 //! every error.
 
 use super::{auth, ApiError, Choreo};
-use crate::motion::io::json::{MotionJson, MotionParts};
+use crate::motion::io::json::MotionParts;
 use crate::motion::io::{read_bytes, ReadOptions};
 use crate::motion::Motion;
 use crate::search::ingest::load_motion;
@@ -23,15 +23,6 @@ pub enum MotionInput {
     },
     /// A stored motion, by id.
     Stored(i64),
-}
-
-/// An inline JSON motion; errors name `field.<part>`.
-pub fn motion_from_json(field: &str, mut m: MotionJson) -> Result<Motion, ApiError> {
-    if m.name.is_empty() {
-        m.name = "request".into();
-    }
-    let name = m.name.clone();
-    m.into_motion(&name).map_err(|e| prefix(field, e.into()))
 }
 
 /// The motion of inline parts; errors name `field.<part>`.

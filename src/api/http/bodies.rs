@@ -43,10 +43,13 @@ pub(super) fn source(field: &str, s: Option<SourceJson>) -> Result<MotionInput, 
     let s = s.ok_or_else(|| ApiError::invalid(field, "missing"))?;
     match (s.motion, s.file, s.id) {
         (None, None, Some(id)) => Ok(MotionInput::Stored(id)),
-        (Some(m), None, None) => Ok(MotionInput::Inline(service::input::motion_from_json(
-            &format!("{field}.motion"),
-            m,
-        )?)),
+        (Some(m), None, None) => {
+            let at = format!("{field}.motion");
+            Ok(MotionInput::Inline(service::input::motion_from_parts(
+                &at,
+                m.into_parts(&at)?,
+            )?))
+        }
         (None, Some(f), None) => {
             let bytes = base64::engine::general_purpose::STANDARD
                 .decode(f.content_base64.as_bytes())

@@ -1,5 +1,7 @@
-//! choreo's JSON motion: what the REST API sends and receives, and the
-//! file format the store keeps inline motions in. `rotations` is
+//! choreo's JSON motion file format (`.json`): what `choreo convert`
+//! writes and the store keeps inline motions in. The REST API's motion
+//! (`api::http::MotionFile`) is its own type, so the wire contract does not
+//! move when this format does. `rotations` is
 //! `[frames][joints][3]` axis-angle (radians) on a named SMPL skeleton,
 //! `translation` `[frames][3]` metres.
 
@@ -8,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct MotionJson {
+pub struct MotionFile {
     pub fps: f64,
     /// `smpl24` (the default) or `smpl13`.
     #[serde(default)]
@@ -21,10 +23,10 @@ pub struct MotionJson {
     pub name: String,
 }
 
-impl MotionJson {
-    pub fn from_motion(m: &Motion) -> MotionJson {
+impl MotionFile {
+    pub fn from_motion(m: &Motion) -> MotionFile {
         let j = m.joints().max(1);
-        MotionJson {
+        MotionFile {
             fps: m.fps,
             skeleton: m.skeleton.kind.clone(),
             rotations: m.rotations.chunks(j).map(|c| c.to_vec()).collect(),
@@ -118,7 +120,7 @@ impl MotionParts {
 
 /// Parse a JSON motion file.
 pub fn read_json(file: &str, bytes: &[u8]) -> Result<Motion, MotionError> {
-    let j: MotionJson = serde_json::from_slice(bytes)
+    let j: MotionFile = serde_json::from_slice(bytes)
         .map_err(|e| MotionError::invalid(file, "json", e.to_string()))?;
     j.into_motion(file)
 }
@@ -126,7 +128,7 @@ pub fn read_json(file: &str, bytes: &[u8]) -> Result<Motion, MotionError> {
 /// Write a motion as JSON (exact: serde writes the shortest f64 that reads
 /// back the same).
 pub fn write_json(m: &Motion) -> Vec<u8> {
-    serde_json::to_vec(&MotionJson::from_motion(m)).expect("a motion serialises")
+    serde_json::to_vec(&MotionFile::from_motion(m)).expect("a motion serialises")
 }
 
 #[cfg(test)]

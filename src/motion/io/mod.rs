@@ -29,7 +29,7 @@ pub enum Format {
     /// AMASS `.npz`.
     Amass,
     Bvh,
-    /// choreo's JSON motion ([`json::MotionJson`]).
+    /// choreo's JSON motion ([`json::MotionFile`]).
     Json,
     /// Keypoints from a video pose estimator (`.npy`, or keypoint `.json`
     /// when a layout is given), solved onto SMPL by inverse kinematics.
