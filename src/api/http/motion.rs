@@ -3,7 +3,7 @@
 //! The wire type of every inline motion in a request (`"motion":
 //! {"motion": …}`), a duet frame, and every motion in a response.
 
-use crate::motion::io::json::MotionParts;
+use crate::motion::io::json::{flatten_rows, rotation_rows, MotionParts};
 use crate::motion::{Labels, Motion};
 use crate::service::ApiError;
 use serde::{Deserialize, Serialize};
@@ -25,11 +25,10 @@ pub struct MotionJson {
 
 impl MotionJson {
     pub fn from_motion(m: &Motion) -> MotionJson {
-        let j = m.joints().max(1);
         MotionJson {
             fps: m.fps,
             skeleton: m.skeleton.kind.clone(),
-            rotations: m.rotations.chunks(j).map(|c| c.to_vec()).collect(),
+            rotations: rotation_rows(m),
             translation: m.trans.clone(),
             labels: m.labels.clone(),
             name: m.name.clone(),
@@ -39,21 +38,13 @@ impl MotionJson {
     /// The transport-neutral parts (as gRPC gives them); a frame with
     /// another joint count than frame 0 is refused as `field.rotations`.
     pub fn into_parts(self, field: &str) -> Result<MotionParts, ApiError> {
-        let joints = self.rotations.first().map_or(0, |r| r.len());
-        if let Some(f) = self.rotations.iter().position(|r| r.len() != joints) {
-            return Err(ApiError::invalid(
-                format!("{field}.rotations"),
-                format!(
-                    "frame {f} has {} joints, frame 0 has {joints}",
-                    self.rotations[f].len()
-                ),
-            ));
-        }
+        let rotations = flatten_rows(self.rotations)
+            .map_err(|r| ApiError::invalid(format!("{field}.rotations"), r))?;
         Ok(MotionParts {
             name: self.name,
             fps: self.fps,
             skeleton: self.skeleton,
-            rotations: self.rotations.into_iter().flatten().collect(),
+            rotations,
             translation: self.translation,
             labels: self.labels,
         })

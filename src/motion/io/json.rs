@@ -23,13 +23,33 @@ pub struct MotionFile {
     pub name: String,
 }
 
+/// A motion's rotations as `[frames][joints]` rows.
+pub fn rotation_rows(m: &Motion) -> Vec<Vec<[f64; 3]>> {
+    m.rotations
+        .chunks(m.joints().max(1))
+        .map(|c| c.to_vec())
+        .collect()
+}
+
+/// `[frames][joints]` rows flattened frame by frame; a frame whose joint
+/// count differs from frame 0's is refused with the reason.
+pub fn flatten_rows(rows: Vec<Vec<[f64; 3]>>) -> Result<Vec<[f64; 3]>, String> {
+    let joints = rows.first().map_or(0, |r| r.len());
+    if let Some(f) = rows.iter().position(|r| r.len() != joints) {
+        return Err(format!(
+            "frame {f} has {} joints, frame 0 has {joints}",
+            rows[f].len()
+        ));
+    }
+    Ok(rows.into_iter().flatten().collect())
+}
+
 impl MotionFile {
     pub fn from_motion(m: &Motion) -> MotionFile {
-        let j = m.joints().max(1);
         MotionFile {
             fps: m.fps,
             skeleton: m.skeleton.kind.clone(),
-            rotations: m.rotations.chunks(j).map(|c| c.to_vec()).collect(),
+            rotations: rotation_rows(m),
             translation: m.trans.clone(),
             labels: m.labels.clone(),
             name: m.name.clone(),
@@ -38,22 +58,13 @@ impl MotionFile {
 
     /// The motion, checked; errors name `file` and the field.
     pub fn into_motion(self, file: &str) -> Result<Motion, MotionError> {
-        let joints = self.rotations.first().map_or(0, |r| r.len());
-        if let Some(f) = self.rotations.iter().position(|r| r.len() != joints) {
-            return Err(MotionError::invalid(
-                file,
-                "rotations",
-                format!(
-                    "frame {f} has {} joints, frame 0 has {joints}",
-                    self.rotations[f].len()
-                ),
-            ));
-        }
+        let rotations =
+            flatten_rows(self.rotations).map_err(|r| MotionError::invalid(file, "rotations", r))?;
         let parts = MotionParts {
             name: self.name,
             fps: self.fps,
             skeleton: self.skeleton,
-            rotations: self.rotations.into_iter().flatten().collect(),
+            rotations,
             translation: self.translation,
             labels: self.labels,
         };
