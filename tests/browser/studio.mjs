@@ -243,6 +243,12 @@ try {
   results.generate_first_frame_ms = await page.evaluate(() => window.__studio.firstFrameMs);
   results.generate_frames = await page.evaluate(() => window.__studio.streamed);
   check(results.generate_frames >= 79, `generated ${results.generate_frames} frames of 80`);
+  // A labelled generation starts from a style exemplar, and the page says which.
+  results.generate_exemplar = await page.evaluate(() => window.__studio.exemplar && window.__studio.exemplar.source);
+  if (firstLabel) {
+    check(results.generate_exemplar, "a labelled generation names no style exemplar");
+    check((await page.textContent("#g-status")).includes("style exemplar"), "the status does not name the exemplar");
+  }
   check(!(await page.isDisabled("#g-save")), "the result cannot be downloaded");
   const [dlg] = await Promise.all([page.waitForEvent("download"), page.click("#g-save")]);
   const gen = JSON.parse(readFileSync(await dlg.path(), "utf8"));

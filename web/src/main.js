@@ -407,6 +407,7 @@ async function generate() {
   const ws = api.socket("/v1/generate/ws");
   let root0 = null;
   let finished = false;
+  let exemplarNote = "";
   closeSocket = () => {
     finished = true;
     ws.close();
@@ -420,7 +421,13 @@ async function generate() {
   };
   ws.onmessage = (ev) => {
     const msg = JSON.parse(ev.data);
-    if (msg.start) timing.start = performance.now() - clicked;
+    if (msg.start) {
+      timing.start = performance.now() - clicked;
+      // The style exemplar the model continues (context only, not shown).
+      const ex = msg.start.exemplar;
+      exemplarNote = ex ? ` · continuing ${ex.seconds.toFixed(1)} s of ${ex.source} (style exemplar)` : "";
+      window.__studio.exemplar = ex || null;
+    }
     if (msg.frame && timing.frame === undefined) timing.frame = performance.now() - clicked;
     if (msg.error) {
       finished = true;
@@ -450,12 +457,14 @@ async function generate() {
           if (window.__studio.firstFrameMs === null) window.__studio.firstFrameMs = performance.now() - clicked;
         });
       }
-      status.textContent = `${frameList.length} / ${frames} frames · ${f.latency_ms.toFixed(1)} ms per frame`;
+      status.textContent = `${frameList.length} / ${frames} frames · ${f.latency_ms.toFixed(1)} ms per frame${exemplarNote}`;
     } else if (msg.end) {
       finished = true;
       player.live = false;
-      status.innerHTML = `<span class="ok">${msg.end.frames} frames in ${msg.end.seconds.toFixed(2)} s</span>` +
-        (window.__studio.firstFrameMs !== null ? ` · first frame shown ${window.__studio.firstFrameMs.toFixed(0)} ms after the click` : "");
+      status.innerHTML = `<span class="ok">${msg.end.frames} frames in ${msg.end.seconds.toFixed(2)} s</span>`;
+      status.append(exemplarNote);
+      if (window.__studio.firstFrameMs !== null)
+        status.append(` · first frame shown ${window.__studio.firstFrameMs.toFixed(0)} ms after the click`);
       $("#g-stop").disabled = true;
       $("#g-save").disabled = false;
       $("#g-save").onclick = () =>
