@@ -175,6 +175,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         top_p: 0.95,
         seed: 9,
         guidance: 1.0,
+        keep_near: 1,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;
@@ -326,7 +327,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
     }
     // Each row names its sampling.
     assert_eq!(rows[0].sampling, "greedy");
-    assert_eq!(rows[1].sampling, "t=1 top_k=0 top_p=0.95");
+    assert_eq!(rows[1].sampling, "t=1 top_k=0 top_p=0.95 keep_near=1");
     // Style exemplars from the training side only: none of their sources
     // is a held-out clip; rows with and without them, side by side.
     let (val, train) =
@@ -360,7 +361,10 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
     let names: Vec<&str> = rows2.iter().map(|r| r.sampling.as_str()).collect();
     assert_eq!(
         names,
-        ["t=1 top_k=0 top_p=0.95", "t=1 top_k=0 top_p=0.95 +exemplar"]
+        [
+            "t=1 top_k=0 top_p=0.95 keep_near=1",
+            "t=1 top_k=0 top_p=0.95 keep_near=1 +exemplar"
+        ]
     );
     // Asking for exemplars the model does not have is an error.
     let missing = GenOptions {

@@ -548,6 +548,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             top_p: 0.95,
             seed: 7,
             guidance: 0.0,
+            keep_near: 0,
         }),
         exemplar: String::new(),
     };
@@ -614,6 +615,37 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     let zr = flat_rotations(&rz["output"]["rotations"]);
     let gz = gz.output.unwrap().rotations;
     assert!(gz.iter().zip(&zr).all(|(a, b)| (a - b).abs() < 1e-12));
+
+    // keep_near over both transports: the same frames; out of range is a
+    // 400 naming the field.
+    let mut near = greq.clone();
+    near.sampling.as_mut().unwrap().keep_near = 1;
+    let gn = client.generate(near).await.unwrap().into_inner();
+    let nreq = json!({
+        "labels": {"genre": "BR"}, "frames": 24,
+        "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
+        "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
+        "sampling": {"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "keep_near": 1}
+    });
+    let (status, rn) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&nreq)))
+            .await
+            .unwrap();
+    assert_eq!(status, 200, "{rn}");
+    let nr = flat_rotations(&rn["output"]["rotations"]);
+    let gn = gn.output.unwrap().rotations;
+    assert!(gn.iter().zip(&nr).all(|(a, b)| (a - b).abs() < 1e-12));
+    assert_ne!(gn, m.rotations, "keep_near changes the draw");
+    let far = json!({"frames": 4, "sampling": {"keep_near": 65}});
+    let (status, e) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&far)))
+            .await
+            .unwrap();
+    assert_eq!(
+        (status, e["error"]["field"].as_str()),
+        (400, Some("sampling.keep_near")),
+        "{e}"
+    );
 
     // Streaming gives the one-shot frames, one message each.
     let mut stream = client.generate_stream(greq).await.unwrap().into_inner();
@@ -751,12 +783,13 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .await
     .unwrap();
     for want in [
-        // The prompt request and the top_p 0 one; the 400s: the bad
-        // exemplar, the bad label and the over-long request; over gRPC the
-        // prompt request, exemplar none and top_p 0.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 2",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 3",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 3",
+        // The prompt request, the top_p 0 and the keep_near ones; the 400s:
+        // the bad exemplar, keep_near 65, the bad label and the over-long
+        // request; over gRPC the prompt request, exemplar none, top_p 0 and
+        // keep_near 1.
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 3",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 4",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 4",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
     ] {
         assert!(metrics.contains(want), "missing {want} in\n{metrics}");

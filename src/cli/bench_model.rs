@@ -84,6 +84,7 @@ pub fn run(
             top_p: 1.0,
             seed: 1,
             guidance: 1.0,
+            keep_near: 0,
         },
     )?;
     let mut lat = Vec::with_capacity(frames);
@@ -120,6 +121,7 @@ pub fn run(
                 top_p: 0.95,
                 seed: 1,
                 guidance: 1.0,
+                keep_near: 0,
             },
         )?;
         let mut lat = Vec::with_capacity(n);

@@ -7,17 +7,19 @@ use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use std::path::{Path, PathBuf};
 
-/// `T:K:P[:G]` (temperature, top-k, top-p, guidance), or `greedy`.
+/// `T:K:P[:G[:N]]` (temperature, top-k, top-p, guidance, keep_near), or
+/// `greedy`.
 pub fn parse_sampling(s: &str) -> Result<Sampling> {
     if s == "greedy" {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    let (t, k, p, g) = match parts[..] {
-        [t, k, p] => (t, k, p, "1"),
-        [t, k, p, g] => (t, k, p, g),
+    let (t, k, p, g, n) = match parts[..] {
+        [t, k, p] => (t, k, p, "1", "0"),
+        [t, k, p, g] => (t, k, p, g, "0"),
+        [t, k, p, g, n] => (t, k, p, g, n),
         _ => bail!(
-            "--sampling: '{s}' is not T:K:P[:G] (temperature:top_k:top_p[:guidance]) or greedy"
+            "--sampling: '{s}' is not T:K:P[:G[:N]] (temperature:top_k:top_p[:guidance[:keep_near]]) or greedy"
         ),
     };
     let sm = Sampling {
@@ -34,6 +36,9 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         guidance: g
             .parse()
             .with_context(|| format!("--sampling: guidance '{g}'"))?,
+        keep_near: n
+            .parse()
+            .with_context(|| format!("--sampling: keep_near '{n}'"))?,
     };
     sm.validate()
         .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;

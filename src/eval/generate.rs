@@ -81,7 +81,15 @@ pub fn sampling_name(s: &Sampling) -> String {
         } else {
             format!(" guidance={}", s.guidance)
         };
-        format!("t={} top_k={} top_p={}{g}", s.temperature, s.top_k, s.top_p)
+        let n = if s.keep_near == 0 {
+            String::new()
+        } else {
+            format!(" keep_near={}", s.keep_near)
+        };
+        format!(
+            "t={} top_k={} top_p={}{g}{n}",
+            s.temperature, s.top_k, s.top_p
+        )
     }
 }
 

@@ -89,7 +89,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.guidance
     };
-    if s.temperature == 0.0 && s.top_k == 0 && s.top_p == 0.0 {
+    if s.temperature == 0.0 && s.top_k == 0 && s.top_p == 0.0 && s.keep_near == 0 {
         return crate::lm::Sampling { guidance, ..r };
     }
     crate::lm::Sampling {
@@ -98,6 +98,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         top_p: if s.top_p == 0.0 { 1.0 } else { s.top_p },
         seed: s.seed,
         guidance,
+        keep_near: s.keep_near,
     }
 }
 

@@ -183,6 +183,10 @@ pub struct SamplingJson {
     /// Classifier-free guidance toward the labels (1 = plain
     /// conditioning); absent = the recommended value.
     pub guidance: Option<f64>,
+    /// Changes of at most this many bins never cut by top_k / top_p
+    /// (frame model); absent = 1 with the recommended setting, 0 with an
+    /// explicit temperature.
+    pub keep_near: Option<u32>,
 }
 
 impl SamplingJson {
@@ -197,6 +201,7 @@ impl SamplingJson {
                 top_k: self.top_k.unwrap_or(r.top_k),
                 top_p: top_p.unwrap_or(r.top_p),
                 guidance,
+                keep_near: self.keep_near.unwrap_or(r.keep_near),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -205,6 +210,7 @@ impl SamplingJson {
                 top_p: top_p.unwrap_or(1.0),
                 seed: self.seed,
                 guidance,
+                keep_near: self.keep_near.unwrap_or(0),
             },
         }
     }
