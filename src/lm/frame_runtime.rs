@@ -593,14 +593,9 @@ fn draw(
         return sampling.draw(abs, rng) as u32;
     };
     // The small changes stay drawable however the tail is cut (keep_near).
-    let r0 = c.radius as i64;
-    let near = if sampling.keep_near == 0 {
-        -1
-    } else {
-        sampling.keep_near as i64
-    };
+    let (r0, near) = (c.radius as i64, sampling.keep_near as i64);
     let k = sampling.draw_keeping(rel, rng, |i| {
-        i as i64 != c.esc() as i64 && (i as i64 - r0).abs() <= near
+        near > 0 && i != c.esc() as usize && (i as i64 - r0).abs() <= near
     }) as u32;
     if k != c.esc() {
         return (p as i64 + k as i64 - c.radius as i64).clamp(0, c.bins as i64 - 1) as u32;
