@@ -107,7 +107,7 @@ pub fn run(
         "| sampling | FID_k (real) | FID_g (real) | accel × | jerk × | skate × | frozen | diversity (real) | cond acc (real) | s/clip |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|");
-    for r in rows {
+    for r in &rows {
         println!(
             "| {} | {} ({}) | {} ({}) | {:.2} | {:.2} | {:.2} | {:.0} % | {:.2} ({:.2}) | {:.0} % ({:.0} %) | {:.2} |",
             r.sampling,
@@ -125,6 +125,9 @@ pub fn run(
             100.0 * r.cond_acc_real,
             r.seconds_per_clip
         );
+    }
+    if rows.iter().any(|r| r.root_in_place) {
+        println!("(root held in place on both sides: the real clips have no root trajectory)");
     }
     Ok(())
 }

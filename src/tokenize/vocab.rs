@@ -403,6 +403,17 @@ impl Vocabulary {
         Ok((out, floor))
     }
 
+    /// The token of a root ground-plane velocity (m/s).
+    pub fn encode_root_velocity(&self, v: f64) -> u32 {
+        self.velocity_bins().encode(v)
+    }
+
+    /// A frame's root velocity tokens (x, z).
+    pub fn root_velocity_tokens(&self, frame: &[u32]) -> (u32, u32) {
+        let nj = self.joints.len();
+        (frame[3 * nj], frame[3 * nj + 1])
+    }
+
     /// The root's ground-plane velocity (x, z, m/s) a frame's tokens carry.
     pub fn decode_root_velocity(&self, frame: &[u32]) -> (f64, f64) {
         let nj = self.joints.len();
