@@ -15,7 +15,7 @@ bin=target/release/choreo
 [ -x "$bin" ] || { echo "build first: cargo build --release" >&2; exit 1; }
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-"$bin" bench index --sizes "$sizes" --queries 200 --m "$m" --ef-construction "$efc" \
+"$bin" bench index --json --server-build --sizes "$sizes" --queries 200 --m "$m" --ef-construction "$efc" --dtype "${DTYPES:-f32}" \
   --backend "${BACKENDS:-hnsw_rs,flat}" --dump "$work" > "$work/choreo.json"
 FAISS_M=$m FAISS_EFC=$efc python3 scripts/bench_faiss.py "$work" ${sizes//,/ } > "$work/faiss.json"
 python3 - "$work/choreo.json" "$work/faiss.json" <<'PY'

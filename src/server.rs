@@ -106,6 +106,11 @@ pub struct ServeConfig {
     /// `hnsw_rs`. An index saved by the other one is rebuilt.
     #[arg(long, env = "CHOREO_HNSW_BACKEND", value_enum, default_value = "flat")]
     pub hnsw_backend: crate::index::hnsw::Backend,
+    /// How the HNSW indexes store vectors: `f32`, or `f16` (half the
+    /// memory and memory traffic; flat graph only). An index saved with the
+    /// other type is rebuilt.
+    #[arg(long, env = "CHOREO_VECTOR_DTYPE", value_enum, default_value = "f32")]
+    pub vector_dtype: crate::index::VectorDtype,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -217,10 +222,16 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
             r.errors.len()
         );
     }
+    if cfg.vector_dtype == crate::index::VectorDtype::F16
+        && cfg.hnsw_backend == crate::index::hnsw::Backend::HnswRs
+    {
+        anyhow::bail!("--vector-dtype f16 needs --hnsw-backend flat (hnsw_rs stores f32 only)");
+    }
     let searcher = Searcher::open(
         store.clone(),
         HnswParams {
             backend: cfg.hnsw_backend,
+            dtype: cfg.vector_dtype,
             ..Default::default()
         },
     )

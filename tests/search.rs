@@ -230,6 +230,37 @@ async fn ingest_query_filters_staleness_and_errors() {
         .await
         .unwrap();
     assert!(hits[0].source_path.ends_with("newer.npz"));
+    // Half-float storage: the f32 dump is another vector type, so the index
+    // is rebuilt (its meta says f16) and answers as the f32 one did.
+    let half = HnswParams {
+        dtype: choreo::index::VectorDtype::F16,
+        ..HnswParams::default()
+    };
+    let s4 = Searcher::open(store.clone(), half)
+        .await
+        .map(std::sync::Arc::new)
+        .unwrap();
+    let h16 = s4
+        .query(req(&newer, 32.0 / 60.0, Embedding::Dct, Metric::Cosine))
+        .await
+        .unwrap();
+    assert_eq!(h16.len(), hits.len());
+    assert_eq!(
+        (&h16[0].source_path, h16[0].start_frame),
+        (&hits[0].source_path, hits[0].start_frame)
+    );
+    // Rank by rank the scores agree (near-ties may swap places).
+    for (a, b) in h16.iter().zip(&hits) {
+        assert!(
+            (a.score - b.score).abs() < 1e-3,
+            "{} vs {}",
+            a.score,
+            b.score
+        );
+    }
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(format!("{base}.meta.json")).unwrap()).unwrap();
+    assert_eq!(meta["params"]["dtype"], "f16");
 }
 
 /// The live searcher: an ingest is found by the very next query (in every

@@ -3,7 +3,7 @@
 use super::write_npy_f32;
 use anyhow::{bail, Context, Result};
 use choreo::index::hnsw::HnswParams;
-use choreo::index::Metric;
+use choreo::index::{Metric, VectorDtype};
 use choreo::motion::io::{self, ReadOptions};
 use clap::Subcommand;
 use serde_json::json;
@@ -46,6 +46,16 @@ pub enum BenchCmd {
         /// HNSW graphs to build and measure: hnsw_rs, flat, or both.
         #[arg(long, value_delimiter = ',', default_value = "hnsw_rs,flat")]
         backend: Vec<String>,
+        /// Vector types to store: f32, f16 (flat graph only), or both.
+        #[arg(long, value_delimiter = ',', default_value = "f32")]
+        dtype: Vec<VectorDtype>,
+        /// Also build each graph as the server does (ef_search calibrated
+        /// on held-out stored vectors; a second build of every graph).
+        #[arg(long)]
+        server_build: bool,
+        /// Print one JSON object `{"rows": [...]}` (otherwise a table).
+        #[arg(long)]
+        json: bool,
     },
     /// DP keyframe selection time on a clip looped to --frames frames (60 fps):
     /// per 4/4 measure at --bpm, and over the whole clip (exact).
@@ -119,6 +129,9 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             dump_only,
             target_recall,
             backend,
+            dtype,
+            server_build,
+            json,
         } => {
             let metric = Metric::parse(&metric).with_context(|| format!("--metric: '{metric}'"))?;
             let params = HnswParams {
@@ -144,6 +157,9 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
                 dump_only,
                 target_recall,
                 backends,
+                dtypes: dtype,
+                server_build,
+                json,
             })
         }
         BenchCmd::Embed { data, dump } => bench_embed(&data, dump.as_deref()),

@@ -5,8 +5,10 @@
 
 use super::{percentile, rss_mb, write_npy_f32};
 use anyhow::Result;
-use choreo::index::hnsw::{HnswIndex, HnswParams};
-use choreo::index::{kernels, recall, synthetic_latent, AnnIndex, ExactIndex, Hit, Metric};
+use choreo::index::hnsw::{Backend, HnswIndex, HnswParams};
+use choreo::index::{
+    kernels, recall, synthetic_latent, AnnIndex, ExactIndex, Hit, Metric, VectorDtype,
+};
 use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -25,6 +27,13 @@ pub struct Bench {
     pub target_recall: f64,
     /// The HNSW graphs to build and measure.
     pub backends: Vec<choreo::index::hnsw::Backend>,
+    /// The vector types to measure each graph with (f16: flat graph only).
+    pub dtypes: Vec<VectorDtype>,
+    /// Also build each graph as the server does (ef_search calibrated on
+    /// held-out stored vectors): a second build.
+    pub server_build: bool,
+    /// Print `{"rows": [...]}`; otherwise a markdown table.
+    pub json: bool,
 }
 
 /// Latency percentiles, QPS (one thread) and mean recall of a search fn.
@@ -54,12 +63,13 @@ fn measure(
 fn row(
     n: usize,
     index: &str,
+    dtype: VectorDtype,
     build_s: Option<f64>,
     m: (f64, f64, f64, f64),
     extra: Value,
 ) -> Value {
     let mut r = json!({
-        "n": n, "index": index, "dtype": "f32", "build_s": build_s,
+        "n": n, "index": index, "dtype": dtype.name(), "build_s": build_s,
         "p50_ms": m.0, "p95_ms": m.1, "qps": m.2, "recall_at_10": m.3,
         "rss_mb": rss_mb().0,
     });
@@ -89,6 +99,7 @@ pub fn run(b: &Bench) -> Result<()> {
         rows.push(row(
             n,
             "exact",
+            VectorDtype::F32,
             None,
             measure(&queries, &truth, |q| exact.search(q, 10, None)),
             json!({"kernel": kernels::active().name()}),
@@ -109,17 +120,47 @@ pub fn run(b: &Bench) -> Result<()> {
             continue;
         }
         for &backend in &b.backends {
-            let p = HnswParams {
-                backend,
-                ..b.params
-            };
-            rows.extend(hnsw_rows(b, n, p, &items, &queries, &truth));
+            for &dtype in &b.dtypes {
+                if dtype == VectorDtype::F16 && backend == Backend::HnswRs {
+                    continue;
+                }
+                let p = HnswParams {
+                    backend,
+                    dtype,
+                    ..b.params
+                };
+                rows.extend(hnsw_rows(b, n, p, &items, &queries, &truth));
+            }
         }
     }
-    println!(
-        "{}",
-        json!({"rows": rows, "dim": b.dim, "metric": b.metric, "queries": b.queries})
-    );
+    if b.json {
+        println!(
+            "{}",
+            json!({"rows": rows, "dim": b.dim, "metric": b.metric, "queries": b.queries})
+        );
+        return Ok(());
+    }
+    println!("| n | index | dtype | efSearch (chosen by) | build s | p50 ms | p95 ms | QPS (1 thread) | recall@10 | RSS MB |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    let num = |v: &Value, p: usize| v.as_f64().map_or("–".into(), |x| format!("{x:.p$}"));
+    for r in &rows {
+        let ef = match (r.get("ef_search"), r.get("ef_chosen_by")) {
+            (Some(e), Some(by)) => format!("{e} ({})", by.as_str().unwrap_or("")),
+            _ => "–".into(),
+        };
+        println!(
+            "| {} | {} | {} | {ef} | {} | {} | {} | {} | {} | {} |",
+            r["n"],
+            r["index"].as_str().unwrap_or(""),
+            r["dtype"].as_str().unwrap_or(""),
+            num(&r["build_s"], 1),
+            num(&r["p50_ms"], 3),
+            num(&r["p95_ms"], 3),
+            num(&r["qps"], 0),
+            num(&r["recall_at_10"], 4),
+            num(&r["rss_mb"], 0),
+        );
+    }
     Ok(())
 }
 
@@ -149,6 +190,7 @@ fn hnsw_rows(
         row(
             n,
             &name,
+            p.dtype,
             Some(build_s),
             measure(queries, truth, |q| h.search(q, 10, None)),
             extra,
@@ -169,6 +211,9 @@ fn hnsw_rows(
         }
     }
     drop(h);
+    if !b.server_build {
+        return rows;
+    }
     let t = Instant::now();
     let h = HnswIndex::build_calibrated(b.metric, b.dim, p, items, 100, b.target_recall);
     let mut extra = common.clone();
@@ -178,6 +223,7 @@ fn hnsw_rows(
     rows.push(row(
         n,
         &name,
+        p.dtype,
         Some(t.elapsed().as_secs_f64()),
         measure(queries, truth, |q| h.search(q, 10, None)),
         extra,

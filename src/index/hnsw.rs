@@ -2,7 +2,7 @@
 //! (`BASE.hnsw.graph`, `BASE.hnsw.data`) plus `BASE.meta.json`, which records
 //! what the dump was built from so a stale or corrupt index is rebuilt.
 
-use super::{AnnIndex, Hit, Metric};
+use super::{AnnIndex, Hit, Metric, VectorDtype};
 use hnsw_rs::prelude::{AnnT, Distance, FilterT, Hnsw, HnswIo};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -37,6 +37,9 @@ pub struct HnswParams {
     /// Which graph implementation holds the points.
     #[serde(default)]
     pub backend: Backend,
+    /// How the points are stored (f16 only with the flat graph).
+    #[serde(default)]
+    pub dtype: VectorDtype,
 }
 
 /// The HNSW graph behind an [`HnswIndex`].
@@ -76,6 +79,7 @@ impl Default for HnswParams {
             ef_construction: 200,
             ef_search: 128,
             backend: Backend::Flat,
+            dtype: VectorDtype::F32,
         }
     }
 }
@@ -135,12 +139,18 @@ pub struct HnswIndex {
 }
 
 impl HnswIndex {
-    pub fn new(metric: Metric, dim: usize, capacity: usize, params: HnswParams) -> Self {
+    /// An empty index. hnsw_rs stores f32 only: with that backend the
+    /// params' `dtype` is set to f32 (callers refuse f16 there first).
+    pub fn new(metric: Metric, dim: usize, capacity: usize, mut params: HnswParams) -> Self {
         let max_layer = 16;
         let cap = capacity.max(1);
+        if params.backend == Backend::HnswRs {
+            params.dtype = VectorDtype::F32;
+        }
         let graph = match metric {
             _ if params.backend == Backend::Flat => Graph::Flat(super::flat::FlatGraph::new(
                 metric,
+                params.dtype,
                 dim,
                 params.m,
                 params.ef_construction,
@@ -260,7 +270,11 @@ impl HnswIndex {
             .collect();
         let refs: Vec<(&Vec<f32>, usize)> = prepared.iter().map(|(v, id)| (v, *id)).collect();
         match &self.graph {
-            Graph::Flat(f) => refs.iter().for_each(|(v, id)| f.insert(*id, v)),
+            Graph::Flat(f) => {
+                let items: Vec<(usize, &[f32])> =
+                    refs.iter().map(|(v, id)| (*id, v.as_slice())).collect();
+                f.insert_many(&items)
+            }
             Graph::Cos(h) => h.parallel_insert(&refs),
             Graph::L2(h) => h.parallel_insert(&refs),
             Graph::LoadedCos(h) => h.with_dependent(|_, g| g.parallel_insert(&refs)),
@@ -327,11 +341,13 @@ impl HnswIndex {
         Ok(())
     }
 
-    /// Load a dump if its meta says it matches `metric`, `dim`, `count` and
-    /// `generation`; `Ok(None)` when missing or stale, `Err` when corrupt.
+    /// Load a dump if its meta says it matches `metric`, `dtype`, `dim`,
+    /// `count` and `generation`; `Ok(None)` when missing or stale (another
+    /// vector type is stale: the caller rebuilds), `Err` when corrupt.
     pub fn load(
         base: &Path,
         metric: Metric,
+        dtype: VectorDtype,
         dim: usize,
         count: usize,
         generation: i64,
@@ -344,6 +360,7 @@ impl HnswIndex {
             || meta.dim != dim
             || meta.count < count
             || meta.generation != generation
+            || meta.params.dtype != dtype
         {
             return Ok(None);
         }
@@ -352,6 +369,7 @@ impl HnswIndex {
             let f = super::flat::FlatGraph::load(
                 &dir.join(format!("{}.flat", meta.dump_basename)),
                 metric,
+                dtype,
                 dim,
             )?;
             if f.len() != meta.count {

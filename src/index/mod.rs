@@ -58,6 +58,28 @@ impl Metric {
     }
 }
 
+/// How an index stores its vectors: f32, or IEEE half floats (half the
+/// memory and memory traffic; queries stay f32, so only the stored side is
+/// rounded, to a relative 2⁻¹¹). Half floats are for the flat graph.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum VectorDtype {
+    #[default]
+    F32,
+    F16,
+}
+
+impl VectorDtype {
+    pub fn name(self) -> &'static str {
+        match self {
+            VectorDtype::F32 => "f32",
+            VectorDtype::F16 => "f16",
+        }
+    }
+}
+
 /// Dot product (the run-time-chosen SIMD kernel, [`kernels`]).
 #[inline]
 pub fn dot(a: &[f32], b: &[f32]) -> f32 {

@@ -309,10 +309,11 @@ impl Searcher {
         let fail = |err: String| QueryError::Index(base.display().to_string(), err);
         if !exact && load {
             let b = base.clone();
-            let loaded =
-                tokio::task::spawn_blocking(move || HnswIndex::load(&b, m, dim, live, generation))
-                    .await
-                    .map_err(|err| fail(err.to_string()))?;
+            let loaded = tokio::task::spawn_blocking(move || {
+                HnswIndex::load(&b, m, params.dtype, dim, live, generation)
+            })
+            .await
+            .map_err(|err| fail(err.to_string()))?;
             match loaded {
                 // Built by the other graph: rebuilt with the one configured.
                 Ok(Some(ix)) if ix.params().backend != params.backend => {}

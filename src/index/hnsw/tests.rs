@@ -8,20 +8,26 @@ fn latent(n: usize, dim: usize, seed: u64) -> Vec<Vec<f32>> {
 }
 
 /// HNSW agrees with exact search: recall@10 ≥ 0.98 on 3,000 vectors of
-/// the DCT embedding's dimension, for both metrics, and again after a
-/// save/load round trip.
+/// the DCT embedding's dimension, for both metrics, both graphs and the
+/// flat graph's half-float storage (its bulk build runs the parallel
+/// batches past the first 1,024 points), and again after a save/load
+/// round trip.
 #[test]
 fn hnsw_recall_against_exact() {
     let dim = 1152;
     let data = latent(3000, dim, 1);
     let queries = latent(100, dim, 2);
     let dir = tempfile::tempdir().unwrap();
-    for (metric, backend) in Metric::ALL
-        .into_iter()
-        .flat_map(|m| [(m, Backend::HnswRs), (m, Backend::Flat)])
-    {
+    for (metric, backend, dtype) in Metric::ALL.into_iter().flat_map(|m| {
+        [
+            (m, Backend::HnswRs, VectorDtype::F32),
+            (m, Backend::Flat, VectorDtype::F32),
+            (m, Backend::Flat, VectorDtype::F16),
+        ]
+    }) {
         let params = HnswParams {
             backend,
+            dtype,
             ..Default::default()
         };
         let exact = ExactIndex::new(metric, dim);
@@ -39,20 +45,34 @@ fn hnsw_recall_against_exact() {
             "{} {backend:?}: ef {ef} recall {r}",
             metric.name()
         );
-        let base = dir
-            .path()
-            .join(format!("ix-{}-{}", metric.name(), backend.name()));
+        let base = dir.path().join(format!(
+            "ix-{}-{}-{}",
+            metric.name(),
+            backend.name(),
+            dtype.name()
+        ));
         h.save(&base, 7).unwrap();
-        let loaded = HnswIndex::load(&base, metric, dim, data.len(), 7)
+        let loaded = HnswIndex::load(&base, metric, dtype, dim, data.len(), 7)
             .unwrap()
             .unwrap();
         assert_eq!(loaded.params().ef_search, ef);
+        assert_eq!(loaded.params().dtype, dtype);
         assert_eq!(loaded.recall_at_10(), Some(r));
         assert!(
-            HnswIndex::load(&base, metric, dim, data.len(), 8)
+            HnswIndex::load(&base, metric, dtype, dim, data.len(), 8)
                 .unwrap()
                 .is_none(),
             "stale generation"
+        );
+        let other = match dtype {
+            VectorDtype::F32 => VectorDtype::F16,
+            VectorDtype::F16 => VectorDtype::F32,
+        };
+        assert!(
+            HnswIndex::load(&base, metric, other, dim, data.len(), 7)
+                .unwrap()
+                .is_none(),
+            "another vector type is stale: rebuilt"
         );
         for ix in [&h, &loaded] {
             let r: f64 = queries
@@ -60,15 +80,24 @@ fn hnsw_recall_against_exact() {
                 .map(|q| super::super::recall(&exact.search(q, 10, None), &ix.search(q, 10, None)))
                 .sum::<f64>()
                 / queries.len() as f64;
-            assert!(r >= 0.98, "{} {backend:?}: recall {r}", metric.name());
+            assert!(
+                r >= 0.98,
+                "{} {backend:?} {dtype:?}: recall {r}",
+                metric.name()
+            );
         }
         // Distances are the metric's own (the exact index's).
         let (a, b) = (
             &h.search(&queries[1], 3, None),
             &exact.search(&queries[1], 3, None),
         );
+        // (f16: the stored side is rounded, to a relative 2^-11.)
+        let tol = match dtype {
+            VectorDtype::F32 => 1e-4,
+            VectorDtype::F16 => 2e-3 * b[0].distance.max(1.0),
+        };
         if a[0].id == b[0].id {
-            assert!((a[0].distance - b[0].distance).abs() < 1e-4, "{a:?} {b:?}");
+            assert!((a[0].distance - b[0].distance).abs() < tol, "{a:?} {b:?}");
         }
         // Filters hold, and still fill k.
         let even = |id: usize| id % 2 == 0;
@@ -102,17 +131,21 @@ fn corrupt_flat_dump_is_refused() {
     let meta = h.save(&base, 1).unwrap();
     let file = dir.path().join(format!("{}.flat", meta.dump_basename));
     let good = std::fs::read(&file).unwrap();
-    assert!(HnswIndex::load(&base, Metric::Cosine, dim, 200, 1)
-        .unwrap()
-        .is_some());
+    assert!(
+        HnswIndex::load(&base, Metric::Cosine, VectorDtype::F32, dim, 200, 1)
+            .unwrap()
+            .is_some()
+    );
     std::fs::write(&file, &good[..good.len() - 5]).unwrap();
-    assert!(HnswIndex::load(&base, Metric::Cosine, dim, 200, 1).is_err());
+    assert!(HnswIndex::load(&base, Metric::Cosine, VectorDtype::F32, dim, 200, 1).is_err());
     let mut bad = good.clone();
     let links_at = good.len() - 4 * 10;
     bad[links_at..links_at + 4].copy_from_slice(&5000u32.to_le_bytes());
     std::fs::write(&file, &bad).unwrap();
-    assert!(HnswIndex::load(&base, Metric::Cosine, dim, 200, 1).is_err());
-    assert!(HnswIndex::load(&base, Metric::Euclidean, dim, 200, 1)
-        .unwrap()
-        .is_none());
+    assert!(HnswIndex::load(&base, Metric::Cosine, VectorDtype::F32, dim, 200, 1).is_err());
+    assert!(
+        HnswIndex::load(&base, Metric::Euclidean, VectorDtype::F32, dim, 200, 1)
+            .unwrap()
+            .is_none()
+    );
 }

@@ -1,26 +1,28 @@
 //! HNSW on flat arrays (Malkov & Yashunin, 2018): the vectors in one
-//! contiguous `n × dim` block, layer-0 links in one `n × 2M` block of
-//! `u32`, upper-layer links per node, a visited set stamped with a search
-//! counter instead of cleared. No per-point allocation, no `Arc` or lock
-//! per node: a search reads arrays. Inserts take the graph's write lock one
-//! point at a time (searches hold the read lock), which suits the live
-//! searcher's few inserts per write; a bulk build inserts in order on one
-//! thread.
+//! contiguous `n × dim` block (f32, or half floats: [`VectorDtype`]),
+//! layer-0 links in one `n × 2M` block of `u32`, upper-layer links per
+//! node, a visited set stamped with a search counter instead of cleared.
+//! No per-point allocation, no `Arc` or lock per node: a search reads
+//! arrays. A single insert takes the graph's write lock (searches hold the
+//! read lock), which suits the live searcher's few inserts per write; a
+//! bulk build inserts in batches on every core ([`build`]).
 //!
 //! Distances: cosine is `1 − a·b` on unit vectors, Euclidean is the
 //! squared distance inside the graph (same order) and its square root
-//! outside.
+//! outside. Queries and inserted points stay f32; only the stored copy is
+//! rounded when the graph keeps halves.
 
-use super::{kernels, Hit, Metric};
+mod build;
+mod io;
+
+use super::{kernels, Hit, Metric, VectorDtype};
+use std::borrow::Cow;
 use std::cell::RefCell;
 use std::cmp::{Ordering, Reverse};
 use std::collections::BinaryHeap;
-use std::io::{Read, Write};
-use std::path::Path;
 use std::sync::RwLock;
 
 const NONE: u32 = u32::MAX;
-const MAGIC: &[u8; 8] = b"CHFHNSW1";
 
 #[derive(Clone, Copy, PartialEq, PartialOrd)]
 struct D(f32);
@@ -31,10 +33,31 @@ impl Ord for D {
     }
 }
 
-#[derive(Default)]
+/// The stored vectors, `n × dim`.
+enum Vecs {
+    F32(Vec<f32>),
+    /// IEEE half-float bits.
+    F16(Vec<u16>),
+}
+
+impl Vecs {
+    fn new(dtype: VectorDtype) -> Vecs {
+        match dtype {
+            VectorDtype::F32 => Vecs::F32(Vec::new()),
+            VectorDtype::F16 => Vecs::F16(Vec::new()),
+        }
+    }
+    fn push(&mut self, v: &[f32]) {
+        match self {
+            Vecs::F32(x) => x.extend_from_slice(v),
+            Vecs::F16(x) => x.extend(kernels::half_float::encode(v)),
+        }
+    }
+}
+
 struct Graph {
     ids: Vec<u64>,
-    vecs: Vec<f32>,
+    vecs: Vecs,
     levels: Vec<u8>,
     links0: Vec<u32>,
     /// Per node, levels 1..=level, `m` links each (empty for level 0).
@@ -45,6 +68,7 @@ struct Graph {
 
 pub struct FlatGraph {
     metric: Metric,
+    dtype: VectorDtype,
     dim: usize,
     m: usize,
     m0: usize,
@@ -61,12 +85,12 @@ thread_local! {
 /// Ask for the first cache lines of a vector (the hardware prefetcher
 /// streams the rest once they arrive).
 #[inline]
-fn prefetch(v: &[f32]) {
+fn prefetch<T>(v: &[T]) {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
         let p = v.as_ptr() as *const i8;
-        let lines = (v.len() * 4).div_ceil(64).min(4);
+        let lines = std::mem::size_of_val(v).div_ceil(64).min(4);
         for i in 0..lines {
             // SAFETY: prefetch never faults; the address is inside `v`.
             unsafe { _mm_prefetch(p.add(i * 64), _MM_HINT_T0) };
@@ -77,18 +101,30 @@ fn prefetch(v: &[f32]) {
 }
 
 impl FlatGraph {
-    pub fn new(metric: Metric, dim: usize, m: usize, ef_construction: usize) -> FlatGraph {
+    pub fn new(
+        metric: Metric,
+        dtype: VectorDtype,
+        dim: usize,
+        m: usize,
+        ef_construction: usize,
+    ) -> FlatGraph {
         let m = m.max(2);
         FlatGraph {
             metric,
+            dtype,
             dim,
             m,
             m0: 2 * m,
             ef_construction: ef_construction.max(m),
             level_mult: 1.0 / (m as f64).ln(),
             g: RwLock::new(Graph {
+                ids: Vec::new(),
+                vecs: Vecs::new(dtype),
+                levels: Vec::new(),
+                links0: Vec::new(),
+                upper: Vec::new(),
                 entry: NONE,
-                ..Default::default()
+                max_level: 0,
             }),
             rng: std::sync::Mutex::new(0x2545_F491_4F6C_DD1D),
         }
@@ -102,11 +138,43 @@ impl FlatGraph {
         self.len() == 0
     }
 
+    /// How the graph stores its vectors.
+    pub fn dtype(&self) -> VectorDtype {
+        self.dtype
+    }
+
+    /// The graph's distance from an f32 vector to stored node `n`.
     #[inline]
-    fn dist(&self, a: &[f32], b: &[f32]) -> f32 {
-        match self.metric {
-            Metric::Cosine => 1.0 - kernels::dot(a, b),
-            Metric::Euclidean => kernels::l2sq(a, b),
+    fn dist(&self, g: &Graph, q: &[f32], n: u32) -> f32 {
+        let (i, d) = (n as usize, self.dim);
+        match (&g.vecs, self.metric) {
+            (Vecs::F32(v), Metric::Cosine) => 1.0 - kernels::dot(q, &v[i * d..(i + 1) * d]),
+            (Vecs::F32(v), Metric::Euclidean) => kernels::l2sq(q, &v[i * d..(i + 1) * d]),
+            (Vecs::F16(v), Metric::Cosine) => 1.0 - kernels::dot_f16(q, &v[i * d..(i + 1) * d]),
+            (Vecs::F16(v), Metric::Euclidean) => kernels::l2sq_f16(q, &v[i * d..(i + 1) * d]),
+        }
+    }
+
+    /// Node `n`'s vector as f32 (borrowed, or widened from halves).
+    fn vec<'a>(&self, g: &'a Graph, n: u32) -> Cow<'a, [f32]> {
+        let (i, d) = (n as usize, self.dim);
+        match &g.vecs {
+            Vecs::F32(v) => Cow::Borrowed(&v[i * d..(i + 1) * d]),
+            Vecs::F16(v) => {
+                let mut out = Vec::with_capacity(d);
+                kernels::half_float::decode(&v[i * d..(i + 1) * d], &mut out);
+                Cow::Owned(out)
+            }
+        }
+    }
+
+    /// Start loading node `n`'s vector into cache.
+    #[inline]
+    fn prefetch_node(&self, g: &Graph, n: u32) {
+        let (i, d) = (n as usize, self.dim);
+        match &g.vecs {
+            Vecs::F32(v) => prefetch(&v[i * d..(i + 1) * d]),
+            Vecs::F16(v) => prefetch(&v[i * d..(i + 1) * d]),
         }
     }
 
@@ -127,11 +195,6 @@ impl FlatGraph {
         let r = s.wrapping_mul(0x2545_F491_4F6C_DD1D);
         let u = ((r >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
         ((-u.ln() * self.level_mult) as usize).min(30)
-    }
-
-    fn vec<'a>(&self, g: &'a Graph, i: u32) -> &'a [f32] {
-        let i = i as usize;
-        &g.vecs[i * self.dim..(i + 1) * self.dim]
     }
 
     fn links<'a>(&self, g: &'a Graph, i: u32, level: usize) -> &'a [u32] {
@@ -160,7 +223,7 @@ impl FlatGraph {
                 if n == NONE {
                     break;
                 }
-                let dn = self.dist(q, self.vec(g, n));
+                let dn = self.dist(g, q, n);
                 if dn < d {
                     (ep, d, moved) = (n, dn, true);
                 }
@@ -196,7 +259,7 @@ impl FlatGraph {
             let stamp = *stamp;
             let mut cand: BinaryHeap<Reverse<(D, u32)>> = BinaryHeap::with_capacity(ef * 2);
             let mut best: BinaryHeap<(D, u32)> = BinaryHeap::with_capacity(ef + 1);
-            let d0 = self.dist(q, self.vec(g, ep));
+            let d0 = self.dist(g, q, ep);
             marks[ep as usize] = stamp;
             cand.push(Reverse((D(d0), ep)));
             if keep(ep) {
@@ -218,11 +281,11 @@ impl FlatGraph {
                     if marks[n as usize] != stamp {
                         marks[n as usize] = stamp;
                         fresh.push(n);
-                        prefetch(self.vec(g, n));
+                        self.prefetch_node(g, n);
                     }
                 }
                 for &n in &fresh {
-                    let dn = self.dist(q, self.vec(g, n));
+                    let dn = self.dist(g, q, n);
                     let worst = best.peek().map_or(f32::INFINITY, |b| b.0 .0);
                     if best.len() < ef || dn < worst {
                         cand.push(Reverse((D(dn), n)));
@@ -253,10 +316,7 @@ impl FlatGraph {
                 break;
             }
             let vc = self.vec(g, c);
-            if chosen
-                .iter()
-                .all(|&(_, r)| self.dist(vc, self.vec(g, r)) > d)
-            {
+            if chosen.iter().all(|&(_, r)| self.dist(g, &vc, r) > d) {
                 chosen.push((d, c));
             } else {
                 skipped.push(c);
@@ -279,7 +339,7 @@ impl FlatGraph {
         let mut g = self.g.write().expect("graph lock");
         let me = g.ids.len() as u32;
         g.ids.push(id as u64);
-        g.vecs.extend_from_slice(v);
+        g.vecs.push(v);
         g.levels.push(level as u8);
         g.links0.extend(std::iter::repeat_n(NONE, self.m0));
         g.upper.push(vec![NONE; level * self.m]);
@@ -289,7 +349,7 @@ impl FlatGraph {
             return;
         }
         let all = |_: u32| true;
-        let (mut ep, mut d) = (g.entry, self.dist(v, self.vec(&g, g.entry)));
+        let (mut ep, mut d) = (g.entry, self.dist(&g, v, g.entry));
         for l in (level + 1..=g.max_level).rev() {
             (ep, d) = self.greedy(&g, v, ep, d, l);
         }
@@ -321,18 +381,19 @@ impl FlatGraph {
             self.links_mut(g, n, level)[free] = me;
             return;
         }
-        let vn = self.vec(g, n);
-        let mut cands: Vec<(f32, u32)> = links
-            .iter()
-            .chain(std::iter::once(&me))
-            .map(|&c| (self.dist(vn, self.vec(g, c)), c))
-            .collect();
-        cands.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let kept = self.select(g, &cands, cap);
+        let kept = self.shrink(g, n, links.iter().copied().chain([me]), cap);
         let slots = self.links_mut(g, n, level);
         for (i, s) in slots.iter_mut().enumerate() {
             *s = kept.get(i).copied().unwrap_or(NONE);
         }
+    }
+
+    /// Node `n`'s links on a level re-chosen from `cands` by the heuristic.
+    fn shrink(&self, g: &Graph, n: u32, cands: impl Iterator<Item = u32>, cap: usize) -> Vec<u32> {
+        let vn = self.vec(g, n);
+        let mut c: Vec<(f32, u32)> = cands.map(|c| (self.dist(g, &vn, c), c)).collect();
+        c.sort_by(|a, b| a.0.total_cmp(&b.0));
+        self.select(g, &c, cap)
     }
 
     /// The `k` nearest (external id, reported distance) to a prepared query
@@ -348,7 +409,7 @@ impl FlatGraph {
         if g.entry == NONE || k == 0 {
             return Vec::new();
         }
-        let (mut ep, mut d) = (g.entry, self.dist(q, self.vec(&g, g.entry)));
+        let (mut ep, mut d) = (g.entry, self.dist(&g, q, g.entry));
         for l in (1..=g.max_level).rev() {
             (ep, d) = self.greedy(&g, q, ep, d, l);
         }
@@ -363,125 +424,5 @@ impl FlatGraph {
                 distance: self.reported(d),
             })
             .collect()
-    }
-
-    /// Write the graph to `path` (a temporary name, then renamed).
-    pub fn save(&self, path: &Path) -> std::io::Result<()> {
-        let g = self.g.read().expect("graph lock");
-        let tmp = path.with_extension("partial");
-        let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
-        w.write_all(MAGIC)?;
-        let head = [
-            self.dim as u64,
-            self.m as u64,
-            self.ef_construction as u64,
-            g.ids.len() as u64,
-            g.entry as u64,
-            g.max_level as u64,
-            match self.metric {
-                Metric::Cosine => 0,
-                Metric::Euclidean => 1,
-            },
-        ];
-        for h in head {
-            w.write_all(&h.to_le_bytes())?;
-        }
-        for id in &g.ids {
-            w.write_all(&id.to_le_bytes())?;
-        }
-        for x in &g.vecs {
-            w.write_all(&x.to_le_bytes())?;
-        }
-        w.write_all(&g.levels)?;
-        for x in &g.links0 {
-            w.write_all(&x.to_le_bytes())?;
-        }
-        for u in &g.upper {
-            for x in u {
-                w.write_all(&x.to_le_bytes())?;
-            }
-        }
-        w.flush()?;
-        drop(w);
-        std::fs::rename(tmp, path)
-    }
-
-    /// Read a graph [`FlatGraph::save`] wrote; every length and link is
-    /// checked, so a truncated or corrupt file is an error, never a wrong
-    /// answer.
-    pub fn load(path: &Path, metric: Metric, dim: usize) -> anyhow::Result<FlatGraph> {
-        let mut bytes = Vec::new();
-        std::fs::File::open(path)?.read_to_end(&mut bytes)?;
-        let bad = |what: &str| anyhow::anyhow!("{}: {what}", path.display());
-        if bytes.len() < 8 + 7 * 8 || &bytes[..8] != MAGIC {
-            return Err(bad("not a choreo flat HNSW file"));
-        }
-        let mut at = 8;
-        // `n` little-endian words of `W` bytes from `at`, or "truncated".
-        fn words<const W: usize, T>(
-            bytes: &[u8],
-            at: &mut usize,
-            n: usize,
-            from: fn([u8; W]) -> T,
-        ) -> Option<Vec<T>> {
-            let end = at.checked_add(n.checked_mul(W)?)?;
-            let s = bytes.get(*at..end)?;
-            *at = end;
-            Some(
-                s.chunks_exact(W)
-                    .map(|c| from(c.try_into().expect("word")))
-                    .collect(),
-            )
-        }
-        let truncated = || bad("truncated");
-        let h = words(&bytes, &mut at, 7, u64::from_le_bytes).ok_or_else(truncated)?;
-        let (fdim, m, efc, n, entry, max_level, fmetric) = (
-            h[0] as usize,
-            h[1] as usize,
-            h[2] as usize,
-            h[3] as usize,
-            h[4] as u32,
-            h[5] as usize,
-            h[6],
-        );
-        let want_metric = match metric {
-            Metric::Cosine => 0,
-            Metric::Euclidean => 1,
-        };
-        if fdim != dim || fmetric != want_metric || m < 2 || max_level > 30 {
-            return Err(bad("built for another metric, dimension or shape"));
-        }
-        let ids = words(&bytes, &mut at, n, u64::from_le_bytes).ok_or_else(truncated)?;
-        let vecs = words(&bytes, &mut at, n * dim, f32::from_le_bytes).ok_or_else(truncated)?;
-        let levels = words(&bytes, &mut at, n, u8::from_le_bytes).ok_or_else(truncated)?;
-        let links0 = words(&bytes, &mut at, n * 2 * m, u32::from_le_bytes).ok_or_else(truncated)?;
-        let mut upper = Vec::with_capacity(n);
-        for &l in &levels {
-            upper.push(
-                words(&bytes, &mut at, l as usize * m, u32::from_le_bytes).ok_or_else(truncated)?,
-            );
-        }
-        if at != bytes.len() {
-            return Err(bad("trailing bytes"));
-        }
-        let valid = |x: &u32| *x == NONE || (*x as usize) < n;
-        if !links0.iter().all(valid)
-            || !upper.iter().flatten().all(valid)
-            || (n > 0 && (entry as usize >= n || levels[entry as usize] as usize != max_level))
-            || vecs.iter().any(|x| !x.is_finite())
-        {
-            return Err(bad("links, entry point or vectors out of range"));
-        }
-        let f = FlatGraph::new(metric, dim, m, efc);
-        *f.g.write().expect("graph lock") = Graph {
-            ids,
-            vecs,
-            levels,
-            links0,
-            upper,
-            entry: if n == 0 { NONE } else { entry },
-            max_level,
-        };
-        Ok(f)
     }
 }
