@@ -3,7 +3,8 @@
 # synthetic vectors and queries, at the same M / efConstruction, each with
 # efSearch set for recall@10 >= 0.99 against exact search:
 #   cargo build --release && scripts/bench_index.sh [SIZES] [M] [EFC]
-# BACKENDS=flat (or hnsw_rs, or both: the default) picks choreo's graphs.
+# BACKENDS=flat (or hnsw_rs, or both: the default) picks choreo's graphs;
+# DTYPES=f32,f16 the flat graph's vector types (default f32).
 # Needs numpy and faiss-cpu (pip install faiss-cpu). Prints a markdown
 # table for bench/RESULTS.md.
 set -euo pipefail
@@ -21,12 +22,12 @@ FAISS_M=$m FAISS_EFC=$efc python3 scripts/bench_faiss.py "$work" ${sizes//,/ } >
 python3 - "$work/choreo.json" "$work/faiss.json" <<'PY'
 import json, sys
 rows = [r for f in sys.argv[1:] for r in json.load(open(f))["rows"]]
-print("| n | index | efSearch (chosen by) | build s | p50 ms | p95 ms | QPS (1 thread) | recall@10 | RSS MB |")
-print("|---|---|---|---|---|---|---|---|---|")
+print("| n | index | dtype | efSearch (chosen by) | build s | p50 ms | p95 ms | QPS (1 thread) | recall@10 | RSS MB |")
+print("|---|---|---|---|---|---|---|---|---|---|")
 fmt = lambda v, p: "–" if v is None else f"{v:,.{p}f}"
-for r in sorted(rows, key=lambda r: (r["n"], r["index"])):
+for r in sorted(rows, key=lambda r: (r["n"], r["index"], r.get("dtype", ""))):
     ef = f'{r["ef_search"]} ({r["ef_chosen_by"]})' if "ef_search" in r else "–"
     name = r["index"] + (f' [{r["kernel"]}]' if "kernel" in r else "")
-    print(f'| {r["n"]:,} | {name} | {ef} | {fmt(r["build_s"], 1)} | {r["p50_ms"]:.3f} | {r["p95_ms"]:.3f} | '
+    print(f'| {r["n"]:,} | {name} | {r.get("dtype", "f32")} | {ef} | {fmt(r["build_s"], 1)} | {r["p50_ms"]:.3f} | {r["p95_ms"]:.3f} | '
           f'{r["qps"]:,.0f} | {r["recall_at_10"]:.4f} | {fmt(r["rss_mb"], 0)} |')
 PY

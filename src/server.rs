@@ -107,7 +107,9 @@ pub struct ServeConfig {
     #[arg(long, env = "CHOREO_HNSW_BACKEND", value_enum, default_value = "flat")]
     pub hnsw_backend: crate::index::hnsw::Backend,
     /// How the HNSW indexes store vectors: `f32`, or `f16` (half the
-    /// memory and memory traffic; flat graph only). An index saved with the
+    /// memory and memory traffic, the same recall: each index's ef_search
+    /// is still calibrated against exact f32 search; scores are then
+    /// rounded to about 1e-3; flat graph only). An index saved with the
     /// other type is rebuilt.
     #[arg(long, env = "CHOREO_VECTOR_DTYPE", value_enum, default_value = "f32")]
     pub vector_dtype: crate::index::VectorDtype,

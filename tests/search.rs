@@ -230,8 +230,9 @@ async fn ingest_query_filters_staleness_and_errors() {
         .await
         .unwrap();
     assert!(hits[0].source_path.ends_with("newer.npz"));
-    // Half-float storage: the f32 dump is another vector type, so the index
-    // is rebuilt (its meta says f16) and answers as the f32 one did.
+    // Half floats (`--vector-dtype f16`): the f32 dump is another vector
+    // type, so the index is rebuilt (its meta says f16) and answers as the
+    // f32 one did, scores to about 1e-3.
     let half = HnswParams {
         dtype: choreo::index::VectorDtype::F16,
         ..HnswParams::default()

@@ -72,6 +72,17 @@ impl Backend {
     }
 }
 
+impl HnswParams {
+    /// The vector type an index built with these params stores (hnsw_rs:
+    /// always f32).
+    pub fn stored_dtype(&self) -> VectorDtype {
+        match self.backend {
+            Backend::HnswRs => VectorDtype::F32,
+            Backend::Flat => self.dtype,
+        }
+    }
+}
+
 impl Default for HnswParams {
     fn default() -> Self {
         HnswParams {
@@ -144,9 +155,7 @@ impl HnswIndex {
     pub fn new(metric: Metric, dim: usize, capacity: usize, mut params: HnswParams) -> Self {
         let max_layer = 16;
         let cap = capacity.max(1);
-        if params.backend == Backend::HnswRs {
-            params.dtype = VectorDtype::F32;
-        }
+        params.dtype = params.stored_dtype();
         let graph = match metric {
             _ if params.backend == Backend::Flat => Graph::Flat(super::flat::FlatGraph::new(
                 metric,

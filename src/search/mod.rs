@@ -310,7 +310,7 @@ impl Searcher {
         if !exact && load {
             let b = base.clone();
             let loaded = tokio::task::spawn_blocking(move || {
-                HnswIndex::load(&b, m, params.dtype, dim, live, generation)
+                HnswIndex::load(&b, m, params.stored_dtype(), dim, live, generation)
             })
             .await
             .map_err(|err| fail(err.to_string()))?;

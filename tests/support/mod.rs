@@ -28,7 +28,7 @@ pub fn serve_config(dir: &Path) -> ServeConfig {
         cors_origins: vec![],
         log_format: Default::default(),
         hnsw_backend: choreo::index::hnsw::Backend::Flat,
-        vector_dtype: Default::default(),
+        vector_dtype: choreo::index::VectorDtype::F32,
         runtime: choreo::lm::engine::Runtime::Tract,
         ort_lib: None,
         tokens: None,

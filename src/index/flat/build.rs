@@ -4,7 +4,8 @@
 //! (so the batch sees itself as sequential inserts would); the new nodes'
 //! links are written, and every old node that gains a link re-chooses its
 //! list in parallel, one task per (node, level). The graph's write lock is
-//! held throughout; a batch is at most 1/16 of the graph, and the first
+//! held throughout; a batch is at most 1/16 of the graph (and 128 points:
+//! each point also measures the batch's earlier ones), and the first
 //! points go in one by one, so a batch's points never lack a graph to
 //! search.
 
@@ -14,7 +15,7 @@ use rayon::prelude::*;
 /// Points inserted one by one before batches start.
 const SERIAL_FIRST: usize = 1024;
 const MIN_BATCH: usize = 32;
-const MAX_BATCH: usize = 256;
+const MAX_BATCH: usize = 128;
 
 impl FlatGraph {
     /// Insert many prepared vectors (external id, vector), on every core
