@@ -9,8 +9,6 @@
 
 use std::sync::OnceLock;
 
-pub mod half_float;
-
 /// Which kernel family runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernel {
@@ -241,160 +239,109 @@ mod portable {
     }
 }
 
+/// One SIMD kernel over an f32 slice and a slice of stored elements
+/// (f32, or half-float bits): four independent accumulators of `$w` lanes,
+/// `$step(x, y, acc)` per register, the horizontal sum, and the portable
+/// kernel `$tail` for the last `< $w` elements. `$load(p)` reads `$w`
+/// stored elements as f32 lanes. Used for every (family, type, distance).
+#[cfg(target_arch = "x86_64")]
+macro_rules! simd_kernel {
+    (
+        $(#[$doc:meta])* $name:ident, $feat:literal, $t:ty, $w:literal,
+        $zero:ident, $loadf:ident, $load:expr, $add:ident, $hsum:expr,
+        |$x:ident, $y:ident, $acc:ident| $step:expr, $tail:path
+    ) => {
+        $(#[$doc])*
+        #[target_feature(enable = $feat)]
+        pub unsafe fn $name(a: &[f32], b: &[$t]) -> f32 {
+            let n = a.len();
+            let (pa, pb) = (a.as_ptr(), b.as_ptr());
+            let mut acc = [$zero(); 4];
+            let mut i = 0;
+            while i + 4 * $w <= n {
+                for (k, slot) in acc.iter_mut().enumerate() {
+                    let ($x, $y, $acc) = ($loadf(pa.add(i + $w * k)), $load(pb.add(i + $w * k)), *slot);
+                    *slot = $step;
+                }
+                i += 4 * $w;
+            }
+            while i + $w <= n {
+                let ($x, $y, $acc) = ($loadf(pa.add(i)), $load(pb.add(i)), acc[0]);
+                acc[0] = $step;
+                i += $w;
+            }
+            let s = $hsum($add($add(acc[0], acc[1]), $add(acc[2], acc[3])));
+            s + $tail(&a[i..], &b[i..])
+        }
+    };
+}
+
+/// The AVX2+FMA and AVX-512F kernels (dot, squared distance) over one
+/// stored element type; `$load8` / `$load16` read it as f32 lanes.
+#[cfg(target_arch = "x86_64")]
+macro_rules! x86_kernels {
+    ($t:ty, $avx2:literal, $load8:expr, $load16:expr, $pdot:path, $pl2:path,
+     $dot2:ident, $l22:ident, $dot5:ident, $l25:ident) => {
+        simd_kernel!(
+            /// # Safety
+            /// The CPU has the AVX2 family's features; same lengths.
+            $dot2, $avx2, $t, 8, _mm256_setzero_ps, _mm256_loadu_ps, $load8,
+            _mm256_add_ps, |v| hsum256(v), |x, y, acc| _mm256_fmadd_ps(x, y, acc), $pdot
+        );
+        simd_kernel!(
+            /// # Safety
+            /// The CPU has the AVX2 family's features; same lengths.
+            $l22, $avx2, $t, 8, _mm256_setzero_ps, _mm256_loadu_ps, $load8,
+            _mm256_add_ps, |v| hsum256(v),
+            |x, y, acc| { let d = _mm256_sub_ps(x, y); _mm256_fmadd_ps(d, d, acc) }, $pl2
+        );
+        simd_kernel!(
+            /// # Safety
+            /// The CPU has AVX-512F; same lengths.
+            $dot5, "avx512f", $t, 16, _mm512_setzero_ps, _mm512_loadu_ps, $load16,
+            _mm512_add_ps, |v| _mm512_reduce_add_ps(v),
+            |x, y, acc| _mm512_fmadd_ps(x, y, acc), $pdot
+        );
+        simd_kernel!(
+            /// # Safety
+            /// The CPU has AVX-512F; same lengths.
+            $l25, "avx512f", $t, 16, _mm512_setzero_ps, _mm512_loadu_ps, $load16,
+            _mm512_add_ps, |v| _mm512_reduce_add_ps(v),
+            |x, y, acc| { let d = _mm512_sub_ps(x, y); _mm512_fmadd_ps(d, d, acc) }, $pl2
+        );
+    };
+}
+
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
 
+    /// The eight lanes' sum.
+    #[inline]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn hsum256(v: __m256) -> f32 {
-        let lo = _mm256_castps256_ps128(v);
-        let hi = _mm256_extractf128_ps(v, 1);
-        let s = _mm_add_ps(lo, hi);
+    pub(super) unsafe fn hsum256(v: __m256) -> f32 {
+        let s = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
         let s = _mm_add_ps(s, _mm_movehl_ps(s, s));
         let s = _mm_add_ss(s, _mm_shuffle_ps(s, s, 1));
         _mm_cvtss_f32(s)
     }
 
-    /// # Safety
-    /// The CPU has AVX2 and FMA; `a` and `b` have the same length.
-    #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn dot_avx2(a: &[f32], b: &[f32]) -> f32 {
-        let n = a.len();
-        let (pa, pb) = (a.as_ptr(), b.as_ptr());
-        let mut acc = [_mm256_setzero_ps(); 4];
-        let mut i = 0;
-        while i + 32 <= n {
-            for (k, acc) in acc.iter_mut().enumerate() {
-                let x = _mm256_loadu_ps(pa.add(i + 8 * k));
-                let y = _mm256_loadu_ps(pb.add(i + 8 * k));
-                *acc = _mm256_fmadd_ps(x, y, *acc);
-            }
-            i += 32;
-        }
-        while i + 8 <= n {
-            acc[0] = _mm256_fmadd_ps(
-                _mm256_loadu_ps(pa.add(i)),
-                _mm256_loadu_ps(pb.add(i)),
-                acc[0],
-            );
-            i += 8;
-        }
-        let s = _mm256_add_ps(_mm256_add_ps(acc[0], acc[1]), _mm256_add_ps(acc[2], acc[3]));
-        let mut sum = hsum256(s);
-        while i < n {
-            sum += a[i] * b[i];
-            i += 1;
-        }
-        sum
-    }
-
-    /// # Safety
-    /// The CPU has AVX2 and FMA; `a` and `b` have the same length.
-    #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn l2sq_avx2(a: &[f32], b: &[f32]) -> f32 {
-        let n = a.len();
-        let (pa, pb) = (a.as_ptr(), b.as_ptr());
-        let mut acc = [_mm256_setzero_ps(); 4];
-        let mut i = 0;
-        while i + 32 <= n {
-            for (k, acc) in acc.iter_mut().enumerate() {
-                let d = _mm256_sub_ps(
-                    _mm256_loadu_ps(pa.add(i + 8 * k)),
-                    _mm256_loadu_ps(pb.add(i + 8 * k)),
-                );
-                *acc = _mm256_fmadd_ps(d, d, *acc);
-            }
-            i += 32;
-        }
-        while i + 8 <= n {
-            let d = _mm256_sub_ps(_mm256_loadu_ps(pa.add(i)), _mm256_loadu_ps(pb.add(i)));
-            acc[0] = _mm256_fmadd_ps(d, d, acc[0]);
-            i += 8;
-        }
-        let s = _mm256_add_ps(_mm256_add_ps(acc[0], acc[1]), _mm256_add_ps(acc[2], acc[3]));
-        let mut sum = hsum256(s);
-        while i < n {
-            let d = a[i] - b[i];
-            sum += d * d;
-            i += 1;
-        }
-        sum
-    }
-
-    /// # Safety
-    /// The CPU has AVX-512F; `a` and `b` have the same length.
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn dot_avx512(a: &[f32], b: &[f32]) -> f32 {
-        let n = a.len();
-        let (pa, pb) = (a.as_ptr(), b.as_ptr());
-        let mut acc = [_mm512_setzero_ps(); 4];
-        let mut i = 0;
-        while i + 64 <= n {
-            for (k, acc) in acc.iter_mut().enumerate() {
-                let x = _mm512_loadu_ps(pa.add(i + 16 * k));
-                let y = _mm512_loadu_ps(pb.add(i + 16 * k));
-                *acc = _mm512_fmadd_ps(x, y, *acc);
-            }
-            i += 64;
-        }
-        while i + 16 <= n {
-            acc[0] = _mm512_fmadd_ps(
-                _mm512_loadu_ps(pa.add(i)),
-                _mm512_loadu_ps(pb.add(i)),
-                acc[0],
-            );
-            i += 16;
-        }
-        if i < n {
-            // The tail under a mask: lanes past the end load as zero.
-            let m: __mmask16 = (1u32 << (n - i)) as u16 - 1;
-            let x = _mm512_maskz_loadu_ps(m, pa.add(i));
-            let y = _mm512_maskz_loadu_ps(m, pb.add(i));
-            acc[1] = _mm512_fmadd_ps(x, y, acc[1]);
-        }
-        _mm512_reduce_add_ps(_mm512_add_ps(
-            _mm512_add_ps(acc[0], acc[1]),
-            _mm512_add_ps(acc[2], acc[3]),
-        ))
-    }
-
-    /// # Safety
-    /// The CPU has AVX-512F; `a` and `b` have the same length.
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn l2sq_avx512(a: &[f32], b: &[f32]) -> f32 {
-        let n = a.len();
-        let (pa, pb) = (a.as_ptr(), b.as_ptr());
-        let mut acc = [_mm512_setzero_ps(); 4];
-        let mut i = 0;
-        while i + 64 <= n {
-            for (k, acc) in acc.iter_mut().enumerate() {
-                let d = _mm512_sub_ps(
-                    _mm512_loadu_ps(pa.add(i + 16 * k)),
-                    _mm512_loadu_ps(pb.add(i + 16 * k)),
-                );
-                *acc = _mm512_fmadd_ps(d, d, *acc);
-            }
-            i += 64;
-        }
-        while i + 16 <= n {
-            let d = _mm512_sub_ps(_mm512_loadu_ps(pa.add(i)), _mm512_loadu_ps(pb.add(i)));
-            acc[0] = _mm512_fmadd_ps(d, d, acc[0]);
-            i += 16;
-        }
-        if i < n {
-            let m: __mmask16 = (1u32 << (n - i)) as u16 - 1;
-            let d = _mm512_sub_ps(
-                _mm512_maskz_loadu_ps(m, pa.add(i)),
-                _mm512_maskz_loadu_ps(m, pb.add(i)),
-            );
-            acc[1] = _mm512_fmadd_ps(d, d, acc[1]);
-        }
-        _mm512_reduce_add_ps(_mm512_add_ps(
-            _mm512_add_ps(acc[0], acc[1]),
-            _mm512_add_ps(acc[2], acc[3]),
-        ))
-    }
+    x86_kernels!(
+        f32,
+        "avx2,fma",
+        |p| _mm256_loadu_ps(p),
+        |p| _mm512_loadu_ps(p),
+        super::portable::dot,
+        super::portable::l2sq,
+        dot_avx2,
+        l2sq_avx2,
+        dot_avx512,
+        l2sq_avx512
+    );
 }
+
+// After the kernel macros: the half-float kernels use them.
+pub mod half_float;
 
 #[cfg(test)]
 mod tests {
