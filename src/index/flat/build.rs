@@ -37,7 +37,8 @@ impl FlatGraph {
         }
     }
 
-    fn insert_batch(&self, batch: &[(usize, &[f32])]) {
+    /// Insert `batch` (one point: a plain insert) under the write lock.
+    pub(super) fn insert_batch(&self, batch: &[(usize, &[f32])]) {
         for (_, v) in batch {
             assert_eq!(v.len(), self.dim, "vector dimension");
         }
@@ -51,13 +52,16 @@ impl FlatGraph {
             g.links0.extend(std::iter::repeat_n(NONE, self.m0));
             g.upper.push(vec![NONE; level * self.m]);
         }
-        // Each new point's chosen neighbours per level, found in parallel.
+        // Each new point's chosen neighbours per level, found in parallel
+        // (a single point on the calling thread).
         let plans: Vec<Vec<Vec<u32>>> = {
             let gr: &Graph = &g;
-            (0..batch.len())
-                .into_par_iter()
-                .map(|j| self.plan(gr, batch[j].1, &levels, j, base))
-                .collect()
+            let plan = |j: usize| self.plan(gr, batch[j].1, &levels, j, base);
+            if batch.len() == 1 {
+                vec![plan(0)]
+            } else {
+                (0..batch.len()).into_par_iter().map(plan).collect()
+            }
         };
         let mut back: Vec<(u32, u8, u32)> = Vec::new();
         for (j, plan) in plans.iter().enumerate() {
@@ -76,26 +80,28 @@ impl FlatGraph {
             back.chunk_by(|a, b| (a.0, a.1) == (b.0, b.1)).collect();
         let lists: Vec<(u32, usize, Vec<u32>)> = {
             let gr: &Graph = &g;
-            groups
-                .par_iter()
-                .map(|grp| {
-                    let (n, l) = (grp[0].0, grp[0].1 as usize);
-                    let cap = if l == 0 { self.m0 } else { self.m };
-                    let cur = self
-                        .links(gr, n, l)
-                        .iter()
-                        .copied()
-                        .take_while(|&x| x != NONE);
-                    let new = grp.iter().map(|x| x.2);
-                    let all: Vec<u32> = cur.chain(new).collect();
-                    let list = if all.len() <= cap {
-                        all
-                    } else {
-                        self.shrink(gr, n, all.into_iter(), cap)
-                    };
-                    (n, l, list)
-                })
-                .collect()
+            let relink = |grp: &&[(u32, u8, u32)]| {
+                let (n, l) = (grp[0].0, grp[0].1 as usize);
+                let cap = if l == 0 { self.m0 } else { self.m };
+                let cur = self
+                    .links(gr, n, l)
+                    .iter()
+                    .copied()
+                    .take_while(|&x| x != NONE);
+                let new = grp.iter().map(|x| x.2);
+                let all: Vec<u32> = cur.chain(new).collect();
+                let list = if all.len() <= cap {
+                    all
+                } else {
+                    self.shrink(gr, n, all.into_iter(), cap)
+                };
+                (n, l, list)
+            };
+            if batch.len() == 1 {
+                groups.iter().map(relink).collect()
+            } else {
+                groups.par_iter().map(relink).collect()
+            }
         };
         for (n, l, list) in lists {
             let slots = self.links_mut(&mut g, n, l);

@@ -138,11 +138,6 @@ impl FlatGraph {
         self.len() == 0
     }
 
-    /// How the graph stores its vectors.
-    pub fn dtype(&self) -> VectorDtype {
-        self.dtype
-    }
-
     /// The graph's distance from an f32 vector to stored node `n`.
     #[inline]
     fn dist(&self, g: &Graph, q: &[f32], n: u32) -> f32 {
@@ -332,60 +327,10 @@ impl FlatGraph {
         out
     }
 
-    /// Insert one raw (already prepared) vector.
+    /// Insert one raw (already prepared) vector: a batch of one
+    /// ([`build`]), so single and bulk inserts share one mechanism.
     pub fn insert(&self, id: usize, v: &[f32]) {
-        assert_eq!(v.len(), self.dim, "vector dimension");
-        let level = self.random_level();
-        let mut g = self.g.write().expect("graph lock");
-        let me = g.ids.len() as u32;
-        g.ids.push(id as u64);
-        g.vecs.push(v);
-        g.levels.push(level as u8);
-        g.links0.extend(std::iter::repeat_n(NONE, self.m0));
-        g.upper.push(vec![NONE; level * self.m]);
-        if g.entry == NONE {
-            g.entry = me;
-            g.max_level = level;
-            return;
-        }
-        let all = |_: u32| true;
-        let (mut ep, mut d) = (g.entry, self.dist(&g, v, g.entry));
-        for l in (level + 1..=g.max_level).rev() {
-            (ep, d) = self.greedy(&g, v, ep, d, l);
-        }
-        for l in (0..=level.min(g.max_level)).rev() {
-            let cands = self.layer_search(&g, v, ep, self.ef_construction, l, &all);
-            let cap = if l == 0 { self.m0 } else { self.m };
-            let chosen = self.select(&g, &cands, self.m);
-            {
-                let mine = self.links_mut(&mut g, me, l);
-                for (slot, &n) in mine.iter_mut().zip(&chosen) {
-                    *slot = n;
-                }
-            }
-            for &n in &chosen {
-                self.link_back(&mut g, n, me, l, cap);
-            }
-            ep = cands[0].1;
-        }
-        if level > g.max_level {
-            g.max_level = level;
-            g.entry = me;
-        }
-    }
-
-    /// Add `me` to `n`'s links on `level`, re-selecting when full.
-    fn link_back(&self, g: &mut Graph, n: u32, me: u32, level: usize, cap: usize) {
-        let links = self.links(g, n, level);
-        if let Some(free) = links.iter().position(|&x| x == NONE) {
-            self.links_mut(g, n, level)[free] = me;
-            return;
-        }
-        let kept = self.shrink(g, n, links.iter().copied().chain([me]), cap);
-        let slots = self.links_mut(g, n, level);
-        for (i, s) in slots.iter_mut().enumerate() {
-            *s = kept.get(i).copied().unwrap_or(NONE);
-        }
+        self.insert_batch(&[(id, v)]);
     }
 
     /// Node `n`'s links on a level re-chosen from `cands` by the heuristic.
