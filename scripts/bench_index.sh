@@ -4,7 +4,8 @@
 # efSearch set for recall@10 >= 0.99 against exact search:
 #   cargo build --release && scripts/bench_index.sh [SIZES] [M] [EFC]
 # BACKENDS=flat (or hnsw_rs, or both: the default) picks choreo's graphs;
-# DTYPES=f32,f16 the flat graph's vector types (default f32).
+# DTYPES=f32,f16 the flat graph's vector types (default f32); SERVER_BUILD=0
+# skips the second, server-style build (ef calibrated on stored vectors).
 # Needs numpy and faiss-cpu (pip install faiss-cpu). Prints a markdown
 # table for bench/RESULTS.md.
 set -euo pipefail
@@ -12,11 +13,13 @@ cd "$(dirname "$0")/.."
 sizes=${1:-100000}
 m=${2:-16}
 efc=${3:-100}
-bin=target/release/choreo
+bin=${CHOREO_BIN:-target/release/choreo}
 [ -x "$bin" ] || { echo "build first: cargo build --release" >&2; exit 1; }
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-"$bin" bench index --json --server-build --sizes "$sizes" --queries 200 --m "$m" --ef-construction "$efc" --dtype "${DTYPES:-f32}" \
+server_build=(--server-build)
+[ "${SERVER_BUILD:-1}" = 0 ] && server_build=()
+"$bin" bench index --json "${server_build[@]}" --sizes "$sizes" --queries 200 --m "$m" --ef-construction "$efc" --dtype "${DTYPES:-f32}" \
   --backend "${BACKENDS:-hnsw_rs,flat}" --dump "$work" > "$work/choreo.json"
 FAISS_M=$m FAISS_EFC=$efc python3 scripts/bench_faiss.py "$work" ${sizes//,/ } > "$work/faiss.json"
 python3 - "$work/choreo.json" "$work/faiss.json" <<'PY'

@@ -212,7 +212,11 @@ fn bench_embed(data: &[PathBuf], dump: Option<&std::path::Path>) -> Result<()> {
     }
     if let Some(d) = dump {
         std::fs::create_dir_all(d)?;
-        write_npy_f32(&d.join("windows.npy"), &wins)?;
+        write_npy_f32(
+            &d.join("windows.npy"),
+            wins[0].len(),
+            wins.iter().map(|w| w.as_slice()),
+        )?;
     }
     let ex = Extractor::new(StftParams::default())?;
     let mut out = serde_json::Map::new();

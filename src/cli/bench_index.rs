@@ -83,7 +83,11 @@ pub fn run(b: &Bench) -> Result<()> {
     let queries = synthetic_latent(b.queries, b.dim, 99);
     if let Some(d) = &b.dump {
         std::fs::create_dir_all(d)?;
-        write_npy_f32(&d.join("queries.npy"), &queries)?;
+        write_npy_f32(
+            &d.join("queries.npy"),
+            b.dim,
+            queries.iter().map(|q| q.as_slice()),
+        )?;
     }
     let mut rows = Vec::new();
     for &n in &b.sizes {
@@ -108,13 +112,19 @@ pub fn run(b: &Bench) -> Result<()> {
         if let Some(d) = &b.dump {
             write_npy_f32(
                 &d.join(format!("base_{n}.npy")),
-                &items.iter().map(|(_, v)| v.clone()).collect::<Vec<_>>(),
+                b.dim,
+                items.iter().map(|(_, v)| v.as_slice()),
             )?;
             let gt: Vec<Vec<f32>> = truth
                 .iter()
                 .map(|h| h.iter().map(|x| x.id as f32).collect())
                 .collect();
-            write_npy_f32(&d.join(format!("gt_{n}.npy")), &gt)?;
+            let k = gt.first().map_or(0, |g| g.len());
+            write_npy_f32(
+                &d.join(format!("gt_{n}.npy")),
+                k,
+                gt.iter().map(|g| g.as_slice()),
+            )?;
         }
         if b.dump_only {
             continue;

@@ -21,15 +21,31 @@ use anyhow::{Context, Result};
 pub use choreo::eval::percentile;
 
 /// Rows of f32 as a 2-D `.npy` (written as f32).
-pub fn write_npy_f32(path: &std::path::Path, rows: &[Vec<f32>]) -> Result<()> {
-    let a = choreo::motion::io::npy::NdArray {
-        shape: vec![rows.len(), rows.first().map_or(0, |r| r.len())],
-        data: rows
-            .iter()
-            .flat_map(|r| r.iter().map(|&x| x as f64))
-            .collect(),
-    };
-    std::fs::write(path, a.to_npy(true)).with_context(|| path.display().to_string())
+pub fn write_npy_f32<'a>(
+    path: &std::path::Path,
+    dim: usize,
+    rows: impl ExactSizeIterator<Item = &'a [f32]>,
+) -> Result<()> {
+    use std::io::Write;
+    let ctx = || path.display().to_string();
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path).with_context(ctx)?);
+    f.write_all(&choreo::motion::io::npy::npy_header(
+        &[rows.len(), dim],
+        true,
+    ))
+    .with_context(ctx)?;
+    for r in rows {
+        anyhow::ensure!(
+            r.len() == dim,
+            "{}: a row of {} values, not {dim}",
+            ctx(),
+            r.len()
+        );
+        for x in r {
+            f.write_all(&x.to_le_bytes()).with_context(ctx)?;
+        }
+    }
+    f.flush().with_context(ctx)
 }
 
 /// This process's resident memory now and at its peak, MB (Linux).

@@ -120,27 +120,7 @@ impl NdArray {
 
     /// Encode as `.npy` version 1.0, little-endian f8 or f4.
     pub fn to_npy(&self, f32_data: bool) -> Vec<u8> {
-        let shape = match self.shape.len() {
-            0 => "()".to_string(),
-            1 => format!("({},)", self.shape[0]),
-            _ => format!(
-                "({})",
-                self.shape
-                    .iter()
-                    .map(|d| d.to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-        };
-        let descr = if f32_data { "<f4" } else { "<f8" };
-        let mut header =
-            format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
-        let total = 10 + header.len() + 1;
-        header.push_str(&" ".repeat((64 - total % 64) % 64));
-        header.push('\n');
-        let mut out = b"\x93NUMPY\x01\x00".to_vec();
-        out.extend_from_slice(&(header.len() as u16).to_le_bytes());
-        out.extend_from_slice(header.as_bytes());
+        let mut out = npy_header(&self.shape, f32_data);
         for &v in &self.data {
             if f32_data {
                 out.extend_from_slice(&(v as f32).to_le_bytes());
@@ -150,6 +130,32 @@ impl NdArray {
         }
         out
     }
+}
+
+/// The `.npy` (version 1.0) header of a C-ordered array of this shape,
+/// little-endian f32 (`<f4`) or f64 (`<f8`); the data follows it.
+pub fn npy_header(shape: &[usize], f32_data: bool) -> Vec<u8> {
+    let shape = match shape.len() {
+        0 => "()".to_string(),
+        1 => format!("({},)", shape[0]),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(|d| d.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
+    let descr = if f32_data { "<f4" } else { "<f8" };
+    let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
+    let total = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - total % 64) % 64));
+    header.push('\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    out
 }
 
 fn half_to_f64(h: u16) -> f64 {
