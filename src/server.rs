@@ -113,6 +113,11 @@ pub struct ServeConfig {
     /// other type is rebuilt.
     #[arg(long, env = "CHOREO_VECTOR_DTYPE", value_enum, default_value = "f32")]
     pub vector_dtype: crate::index::VectorDtype,
+    /// Megabytes of stored motions' channels kept in memory for queries by
+    /// stored id (least recently used leave first; 0: every query reads
+    /// its segment from the store).
+    #[arg(long, env = "CHOREO_CHANNEL_CACHE_MB", default_value_t = crate::search::DEFAULT_CHANNEL_CACHE_MB)]
+    pub channel_cache_mb: usize,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -224,10 +229,11 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
             r.errors.len()
         );
     }
-    if cfg.vector_dtype == crate::index::VectorDtype::F16
-        && cfg.hnsw_backend == crate::index::hnsw::Backend::HnswRs
-    {
-        anyhow::bail!("--vector-dtype f16 needs --hnsw-backend flat (hnsw_rs stores f32 only)");
+    if cfg.vector_dtype.is_half() && cfg.hnsw_backend == crate::index::hnsw::Backend::HnswRs {
+        anyhow::bail!(
+            "--vector-dtype {} needs --hnsw-backend flat (hnsw_rs stores f32 only)",
+            cfg.vector_dtype.name()
+        );
     }
     let searcher = Searcher::open(
         store.clone(),
@@ -237,7 +243,8 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
             ..Default::default()
         },
     )
-    .await?;
+    .await?
+    .with_channel_cache(cfg.channel_cache_mb << 20);
     let engine = crate::lm::engine::Engine::new(cfg.runtime, cfg.ort_lib.as_deref())?;
     tracing::info!("model runtime: {}", cfg.runtime.name());
     let model = if cfg.model.exists() {

@@ -131,7 +131,7 @@ pub fn run(b: &Bench) -> Result<()> {
         }
         for &backend in &b.backends {
             for &dtype in &b.dtypes {
-                if dtype == VectorDtype::F16 && backend == Backend::HnswRs {
+                if dtype.is_half() && backend == Backend::HnswRs {
                     continue;
                 }
                 let p = HnswParams {

@@ -11,9 +11,11 @@
 //! built, which builds it. The request checks live in [`request`], the
 //! writes and maintenance in [`writes`].
 
+mod channels;
 pub mod ingest;
 mod request;
 mod writes;
+pub use channels::DEFAULT_BUDGET_MB as DEFAULT_CHANNEL_CACHE_MB;
 pub use writes::IngestOutcome;
 
 use crate::features::{
@@ -164,6 +166,8 @@ pub struct Searcher {
     /// ingests skip the `lm` embedding, so a server whose clients never
     /// ask for it never computes it.
     lm_ready: AtomicBool,
+    /// Stored motions' channels kept for queries by id.
+    channels: channels::ChannelCache,
 }
 
 impl Searcher {
@@ -204,8 +208,67 @@ impl Searcher {
             ),
             lm: std::sync::OnceLock::new(),
             lm_ready: AtomicBool::new(false),
+            channels: channels::ChannelCache::new(channels::DEFAULT_BUDGET_MB << 20),
             store,
         })
+    }
+
+    /// Keep up to this many bytes of stored motions' channels in memory
+    /// for queries by stored id (0: read every segment from the store).
+    pub fn with_channel_cache(mut self, bytes: usize) -> Searcher {
+        self.channels = channels::ChannelCache::new(bytes);
+        self
+    }
+
+    /// Channel cache (hits, misses, bytes kept).
+    pub fn channel_cache_stats(&self) -> (u64, u64, usize) {
+        self.channels.stats()
+    }
+
+    /// A stored motion's collection and format as the catalog knows them
+    /// (both are fixed at ingest), without a database read; `None` when
+    /// the catalog has not seen it (a motion another replica just added).
+    pub fn motion_access(&self, id: i64) -> Option<(String, String)> {
+        self.catalog()
+            .motions
+            .get(&id)
+            .map(|m| (m.collection.clone(), m.format.clone()))
+    }
+
+    /// Frames `from..from + frames` of a stored motion's channels (fewer at
+    /// its end) and its length, from the channel cache when the catalog
+    /// knows the motion and it is small enough to keep whole, else from
+    /// the store (that segment's bytes only).
+    async fn stored_segment(
+        &self,
+        id: i64,
+        from: usize,
+        frames: usize,
+    ) -> Result<Option<(usize, Vec<[f32; crate::features::CHANNELS]>)>, QueryError> {
+        let known = self.catalog().motions.get(&id).map(|m| {
+            (
+                m.content_hash.clone(),
+                (m.duration_s.max(0.0) * FEATURE_FPS).ceil() as usize + 1,
+            )
+        });
+        let slice = |ch: &[[f32; crate::features::CHANNELS]]| {
+            let a = from.min(ch.len());
+            (ch.len(), ch[a..(a + frames).min(ch.len())].to_vec())
+        };
+        match known {
+            Some((hash, len)) if self.channels.fits(len) => {
+                if let Some(ch) = self.channels.get(id, &hash) {
+                    return Ok(Some(slice(&ch)));
+                }
+                let Some((_, ch)) = self.store.channel_range(id, 0, 1 << 32).await? else {
+                    return Ok(None);
+                };
+                let out = slice(&ch);
+                self.channels.put(id, &hash, Arc::new(ch));
+                Ok(Some(out))
+            }
+            _ => Ok(self.store.channel_range(id, from, frames).await?),
+        }
     }
 
     /// Offer the `lm` embedding with this frame model (once; later calls
@@ -437,8 +500,7 @@ impl Searcher {
                     0
                 };
                 let (total, seg) = self
-                    .store
-                    .channel_range(*id, from, req.frames)
+                    .stored_segment(*id, from, req.frames)
                     .await?
                     .ok_or(QueryError::NotFound(*id))?;
                 let start = self.segment(&req, &format!("motion {id}"), total)?;

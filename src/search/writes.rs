@@ -155,6 +155,7 @@ impl Searcher {
     /// Take a deleted motion out of the catalog; its points stay in the
     /// indexes, hidden, until compaction (call with `writes` held).
     fn forget(&self, id: i64) {
+        self.channels.forget(id);
         let gone = {
             let mut c = self.catalog.write().expect("catalog lock");
             c.motions.remove(&id);

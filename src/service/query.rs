@@ -71,15 +71,26 @@ pub async fn query(
             (footage, QuerySource::Motion(m))
         }
         MotionInput::Stored(id) => {
-            let row = visible(state, id, who).await.map_err(|e| match e {
-                ApiError::NotFound(_) => ApiError::Missing {
-                    field: "motion.id".into(),
-                    reason: format!("no stored motion {id}"),
-                },
-                other => other,
-            })?;
+            // The catalog's copy of the row (collection and format never
+            // change) spares a database read; a motion it has not seen, or
+            // that the caller may not see, is looked up in the store.
+            let format = match state.searcher.motion_access(id) {
+                Some((collection, format)) if who.sees(&collection) => format,
+                _ => {
+                    visible(state, id, who)
+                        .await
+                        .map_err(|e| match e {
+                            ApiError::NotFound(_) => ApiError::Missing {
+                                field: "motion.id".into(),
+                                reason: format!("no stored motion {id}"),
+                            },
+                            other => other,
+                        })?
+                        .format
+                }
+            };
             (
-                row.format == "keypoints" || row.format == "smpl",
+                format == "keypoints" || format == "smpl",
                 QuerySource::Stored(id),
             )
         }

@@ -29,6 +29,7 @@ pub fn serve_config(dir: &Path) -> ServeConfig {
         log_format: Default::default(),
         hnsw_backend: choreo::index::hnsw::Backend::Flat,
         vector_dtype: choreo::index::VectorDtype::F32,
+        channel_cache_mb: choreo::search::DEFAULT_CHANNEL_CACHE_MB,
         runtime: choreo::lm::engine::Runtime::Tract,
         ort_lib: None,
         tokens: None,

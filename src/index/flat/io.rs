@@ -31,6 +31,7 @@ impl FlatGraph {
             match self.dtype {
                 VectorDtype::F32 => 0,
                 VectorDtype::F16 => 1,
+                VectorDtype::F16Refine => 2,
             },
         ];
         for h in head {
@@ -40,7 +41,10 @@ impl FlatGraph {
             w.write_all(&id.to_le_bytes())?;
         }
         match &g.vecs {
-            Vecs::F32(v) => v.iter().try_for_each(|x| w.write_all(&x.to_le_bytes()))?,
+            // The halves are made again from the f32 vectors on load.
+            Vecs::F32(v) | Vecs::F16Refine(_, v) => {
+                v.iter().try_for_each(|x| w.write_all(&x.to_le_bytes()))?
+            }
             Vecs::F16(v) => v.iter().try_for_each(|x| w.write_all(&x.to_le_bytes()))?,
         }
         w.write_all(&g.levels)?;
@@ -97,6 +101,7 @@ impl FlatGraph {
         let fdtype = match h.get(7).copied().unwrap_or(0) {
             0 => VectorDtype::F32,
             1 => VectorDtype::F16,
+            2 => VectorDtype::F16Refine,
             _ => return Err(bad("unknown vector type")),
         };
         let (fdim, m, efc, n, entry, max_level, fmetric) = (
@@ -125,9 +130,14 @@ impl FlatGraph {
             VectorDtype::F16 => Vecs::F16(
                 words(&bytes, &mut at, n * dim, u16::from_le_bytes).ok_or_else(truncated)?,
             ),
+            VectorDtype::F16Refine => {
+                let full =
+                    words(&bytes, &mut at, n * dim, f32::from_le_bytes).ok_or_else(truncated)?;
+                Vecs::F16Refine(crate::index::kernels::half_float::encode(&full), full)
+            }
         };
         let finite = match &vecs {
-            Vecs::F32(v) => v.iter().all(|x| x.is_finite()),
+            Vecs::F32(v) | Vecs::F16Refine(_, v) => v.iter().all(|x| x.is_finite()),
             Vecs::F16(v) => v.iter().all(|&x| ::half::f16::from_bits(x).is_finite()),
         };
         let levels = words(&bytes, &mut at, n, u8::from_le_bytes).ok_or_else(truncated)?;

@@ -38,6 +38,8 @@ enum Vecs {
     F32(Vec<f32>),
     /// IEEE half-float bits.
     F16(Vec<u16>),
+    /// Half floats for the walk, and the f32 vectors to re-score with.
+    F16Refine(Vec<u16>, Vec<f32>),
 }
 
 impl Vecs {
@@ -45,12 +47,17 @@ impl Vecs {
         match dtype {
             VectorDtype::F32 => Vecs::F32(Vec::new()),
             VectorDtype::F16 => Vecs::F16(Vec::new()),
+            VectorDtype::F16Refine => Vecs::F16Refine(Vec::new(), Vec::new()),
         }
     }
     fn push(&mut self, v: &[f32]) {
         match self {
             Vecs::F32(x) => x.extend_from_slice(v),
             Vecs::F16(x) => x.extend(kernels::half_float::encode(v)),
+            Vecs::F16Refine(x, full) => {
+                x.extend(kernels::half_float::encode(v));
+                full.extend_from_slice(v);
+            }
         }
     }
 }
@@ -145,8 +152,12 @@ impl FlatGraph {
         match (&g.vecs, self.metric) {
             (Vecs::F32(v), Metric::Cosine) => 1.0 - kernels::dot(q, &v[i * d..(i + 1) * d]),
             (Vecs::F32(v), Metric::Euclidean) => kernels::l2sq(q, &v[i * d..(i + 1) * d]),
-            (Vecs::F16(v), Metric::Cosine) => 1.0 - kernels::dot_f16(q, &v[i * d..(i + 1) * d]),
-            (Vecs::F16(v), Metric::Euclidean) => kernels::l2sq_f16(q, &v[i * d..(i + 1) * d]),
+            (Vecs::F16(v) | Vecs::F16Refine(v, _), Metric::Cosine) => {
+                1.0 - kernels::dot_f16(q, &v[i * d..(i + 1) * d])
+            }
+            (Vecs::F16(v) | Vecs::F16Refine(v, _), Metric::Euclidean) => {
+                kernels::l2sq_f16(q, &v[i * d..(i + 1) * d])
+            }
         }
     }
 
@@ -154,7 +165,7 @@ impl FlatGraph {
     fn vec<'a>(&self, g: &'a Graph, n: u32) -> Cow<'a, [f32]> {
         let (i, d) = (n as usize, self.dim);
         match &g.vecs {
-            Vecs::F32(v) => Cow::Borrowed(&v[i * d..(i + 1) * d]),
+            Vecs::F32(v) | Vecs::F16Refine(_, v) => Cow::Borrowed(&v[i * d..(i + 1) * d]),
             Vecs::F16(v) => {
                 let mut out = Vec::with_capacity(d);
                 kernels::half_float::decode(&v[i * d..(i + 1) * d], &mut out);
@@ -169,7 +180,7 @@ impl FlatGraph {
         let (i, d) = (n as usize, self.dim);
         match &g.vecs {
             Vecs::F32(v) => prefetch(&v[i * d..(i + 1) * d]),
-            Vecs::F16(v) => prefetch(&v[i * d..(i + 1) * d]),
+            Vecs::F16(v) | Vecs::F16Refine(v, _) => prefetch(&v[i * d..(i + 1) * d]),
         }
     }
 
@@ -360,7 +371,23 @@ impl FlatGraph {
         }
         let ids = &g.ids;
         let keep = |i: u32| filter.is_none_or(|f| f(ids[i as usize] as usize));
-        let found = self.layer_search(&g, q, ep, ef.max(k), 0, &keep);
+        let mut found = self.layer_search(&g, q, ep, ef.max(k), 0, &keep);
+        if let Vecs::F16Refine(_, full) = &g.vecs {
+            // Half floats moved each distance by about 1e-4: the best 2k
+            // are re-scored with the f32 vectors and re-ordered, so hits
+            // and their scores are exact (a point ranked past 2k by the
+            // halves is not closer than the k-th in f32).
+            found.truncate(2 * k);
+            let d = self.dim;
+            for (dist, n) in &mut found {
+                let v = &full[*n as usize * d..(*n as usize + 1) * d];
+                *dist = match self.metric {
+                    Metric::Cosine => 1.0 - kernels::dot(q, v),
+                    Metric::Euclidean => kernels::l2sq(q, v),
+                };
+            }
+            found.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        }
         found
             .into_iter()
             .take(k)

@@ -23,6 +23,7 @@ fn hnsw_recall_against_exact() {
             (m, Backend::HnswRs, VectorDtype::F32),
             (m, Backend::Flat, VectorDtype::F32),
             (m, Backend::Flat, VectorDtype::F16),
+            (m, Backend::Flat, VectorDtype::F16Refine),
         ]
     }) {
         let params = HnswParams {
@@ -66,7 +67,8 @@ fn hnsw_recall_against_exact() {
         );
         let other = match dtype {
             VectorDtype::F32 => VectorDtype::F16,
-            VectorDtype::F16 => VectorDtype::F32,
+            VectorDtype::F16 => VectorDtype::F16Refine,
+            VectorDtype::F16Refine => VectorDtype::F32,
         };
         assert!(
             HnswIndex::load(&base, metric, other, dim, data.len(), 7)
@@ -92,12 +94,23 @@ fn hnsw_recall_against_exact() {
             &exact.search(&queries[1], 3, None),
         );
         // (f16: the stored side is rounded, to a relative 2^-11.)
+        // f16-refine re-scores with the f32 vectors: exact again.)
         let tol = match dtype {
-            VectorDtype::F32 => 1e-4,
+            VectorDtype::F32 | VectorDtype::F16Refine => 1e-4,
             VectorDtype::F16 => 2e-3 * b[0].distance.max(1.0),
         };
         if a[0].id == b[0].id {
             assert!((a[0].distance - b[0].distance).abs() < tol, "{a:?} {b:?}");
+        }
+        if dtype != VectorDtype::F16 {
+            // A stored vector finds itself at distance 0 (score 1 by cosine).
+            for ix in [&h, &loaded] {
+                let s = ix.search(&data[5], 1, None);
+                assert!(
+                    s[0].id == 5 && s[0].distance.abs() < 1e-5,
+                    "{dtype:?} {s:?}"
+                );
+            }
         }
         // Filters hold, and still fill k.
         let even = |id: usize| id % 2 == 0;
