@@ -33,6 +33,12 @@ function done(summary, latency, requests)
   for code, n in pairs(totals) do
     if code >= 500 then fives = fives + n end
   end
+  if next(totals) == nil then
+    -- A script without a response() callback (cheaper for wrk): wrk
+    -- itself counts answers that are not 2xx/3xx, 5xx among them.
+    io.write(string.format("status not 2xx/3xx: %d (5xx at most that)\n", summary.errors.status))
+    fives = summary.errors.status
+  end
   io.write(string.format("5xx: %d; socket errors: connect %d read %d write %d timeout %d\n",
     fives, summary.errors.connect, summary.errors.read, summary.errors.write,
     summary.errors.timeout))
