@@ -203,6 +203,38 @@ pub fn l2sq_f16(a: &[f32], b: &[u16]) -> f32 {
     (chosen().l2sq_f16)(&a[..n], &b[..n])
 }
 
+/// Dot products (or, with `l2`, squared distances) of `a` with each of
+/// `bs`, into `out`. With AVX-512 four vectors are taken in one pass over
+/// `a`: each load of `a` feeds four FMAs, so the kernel issues 1.25 loads
+/// per FMA instead of 2 (a graph walk scores a node's new neighbours
+/// together). Other kernels score them one by one.
+pub fn batch(a: &[f32], bs: &[&[f32]], l2: bool, out: &mut Vec<f32>) {
+    out.clear();
+    let c = chosen();
+    let one = if l2 { c.l2sq } else { c.dot };
+    #[cfg(target_arch = "x86_64")]
+    if c.kernel == Kernel::Avx512 && bs.iter().all(|b| b.len() == a.len()) {
+        let mut chunks = bs.chunks_exact(4);
+        for four in chunks.by_ref() {
+            let four = [four[0], four[1], four[2], four[3]];
+            // SAFETY: AVX-512F was chosen, so the CPU has it; equal lengths.
+            out.extend(unsafe {
+                if l2 {
+                    x86::l2sq4_avx512(a, four)
+                } else {
+                    x86::dot4_avx512(a, four)
+                }
+            });
+        }
+        out.extend(chunks.remainder().iter().map(|b| one(a, b)));
+        return;
+    }
+    out.extend(bs.iter().map(|b| {
+        let n = a.len().min(b.len());
+        one(&a[..n], &b[..n])
+    }));
+}
+
 mod portable {
     /// Eight partial sums, so the compiler can vectorise for the baseline
     /// target (SSE2) without reassociating.
@@ -326,6 +358,48 @@ mod x86 {
         _mm_cvtss_f32(s)
     }
 
+    /// Four candidates per pass over `a` (see [`super::batch`]): two
+    /// accumulators each; `$step(x, y, acc)`; tails through the portable
+    /// kernel `$tail`.
+    macro_rules! four_kernel {
+        ($name:ident, |$x:ident, $y:ident, $acc:ident| $step:expr, $tail:path) => {
+            /// # Safety
+            /// The CPU has AVX-512F; every `b` as long as `a`.
+            #[target_feature(enable = "avx512f")]
+            pub unsafe fn $name(a: &[f32], b: [&[f32]; 4]) -> [f32; 4] {
+                let n = a.len();
+                let pa = a.as_ptr();
+                let pb = b.map(|b| b.as_ptr());
+                let mut acc = [[_mm512_setzero_ps(); 2]; 4];
+                let mut i = 0;
+                while i + 32 <= n {
+                    let x0 = _mm512_loadu_ps(pa.add(i));
+                    let x1 = _mm512_loadu_ps(pa.add(i + 16));
+                    for c in 0..4 {
+                        let ($x, $y, $acc) = (x0, _mm512_loadu_ps(pb[c].add(i)), acc[c][0]);
+                        acc[c][0] = $step;
+                        let ($x, $y, $acc) = (x1, _mm512_loadu_ps(pb[c].add(i + 16)), acc[c][1]);
+                        acc[c][1] = $step;
+                    }
+                    i += 32;
+                }
+                std::array::from_fn(|c| {
+                    _mm512_reduce_add_ps(_mm512_add_ps(acc[c][0], acc[c][1]))
+                        + $tail(&a[i..], &b[c][i..n])
+                })
+            }
+        };
+    }
+    four_kernel!(dot4_avx512, |x, y, acc| _mm512_fmadd_ps(x, y, acc), super::portable::dot);
+    four_kernel!(
+        l2sq4_avx512,
+        |x, y, acc| {
+            let d = _mm512_sub_ps(x, y);
+            _mm512_fmadd_ps(d, d, acc)
+        },
+        super::portable::l2sq
+    );
+
     x86_kernels!(
         f32,
         "avx2,fma",
@@ -346,6 +420,47 @@ pub mod half_float;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The batch scoring (four vectors per pass with AVX-512) equals an f64
+    /// sum for dot and squared distance, at lengths with and without tails,
+    /// and for batches that are not a multiple of four.
+    #[test]
+    fn batch_agrees_with_f64() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(9);
+        for n in [0, 1, 31, 32, 33, 100, 1152, 9720] {
+            let a: Vec<f32> = (0..n).map(|_| rng.gen_range(-1.0..1.0)).collect();
+            for m in [1, 3, 4, 7, 9] {
+                let bs: Vec<Vec<f32>> = (0..m)
+                    .map(|_| (0..n).map(|_| rng.gen_range(-1.0..1.0)).collect())
+                    .collect();
+                let refs: Vec<&[f32]> = bs.iter().map(|b| b.as_slice()).collect();
+                for l2 in [false, true] {
+                    let mut out = Vec::new();
+                    batch(&a, &refs, l2, &mut out);
+                    assert_eq!(out.len(), m);
+                    for (b, got) in bs.iter().zip(&out) {
+                        let want: f64 = a
+                            .iter()
+                            .zip(b)
+                            .map(|(x, y)| {
+                                let (x, y) = (*x as f64, *y as f64);
+                                if l2 {
+                                    (x - y) * (x - y)
+                                } else {
+                                    x * y
+                                }
+                            })
+                            .sum();
+                        assert!(
+                            (*got as f64 - want).abs() < 1e-4 * (1.0 + want.abs()),
+                            "n {n} m {m} l2 {l2}: {got} vs {want}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 
     /// Every kernel this CPU runs agrees with an f64 sum, at every length
     /// from 0 to 200 (all tails) and at the embeddings' 1,152.

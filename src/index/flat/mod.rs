@@ -161,6 +161,30 @@ impl FlatGraph {
         }
     }
 
+    /// [`Self::dist`] to each of `nodes`, into `out`: f32 vectors are
+    /// scored together ([`kernels::batch`]: one pass over the query for
+    /// four of them).
+    fn dists(&self, g: &Graph, q: &[f32], nodes: &[u32], out: &mut Vec<f32>) {
+        let d = self.dim;
+        match &g.vecs {
+            Vecs::F32(v) => {
+                let rows: Vec<&[f32]> = nodes
+                    .iter()
+                    .map(|&n| &v[n as usize * d..(n as usize + 1) * d])
+                    .collect();
+                let l2 = self.metric == Metric::Euclidean;
+                kernels::batch(q, &rows, l2, out);
+                if !l2 {
+                    out.iter_mut().for_each(|x| *x = 1.0 - *x);
+                }
+            }
+            _ => {
+                out.clear();
+                out.extend(nodes.iter().map(|&n| self.dist(g, q, n)));
+            }
+        }
+    }
+
     /// Node `n`'s vector as f32 (borrowed, or widened from halves).
     fn vec<'a>(&self, g: &'a Graph, n: u32) -> Cow<'a, [f32]> {
         let (i, d) = (n as usize, self.dim);
@@ -272,6 +296,7 @@ impl FlatGraph {
                 best.push((D(d0), ep));
             }
             let mut fresh: Vec<u32> = Vec::with_capacity(self.m0);
+            let mut dists: Vec<f32> = Vec::with_capacity(self.m0);
             while let Some(Reverse((D(dc), c))) = cand.pop() {
                 if best.len() >= ef && dc > best.peek().map_or(f32::INFINITY, |b| b.0 .0) {
                     break;
@@ -290,8 +315,8 @@ impl FlatGraph {
                         self.prefetch_node(g, n);
                     }
                 }
-                for &n in &fresh {
-                    let dn = self.dist(g, q, n);
+                self.dists(g, q, &fresh, &mut dists);
+                for (&n, &dn) in fresh.iter().zip(&dists) {
                     let worst = best.peek().map_or(f32::INFINITY, |b| b.0 .0);
                     if best.len() < ef || dn < worst {
                         cand.push(Reverse((D(dn), n)));
