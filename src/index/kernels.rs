@@ -226,7 +226,24 @@ pub fn batch(a: &[f32], bs: &[&[f32]], l2: bool, out: &mut Vec<f32>) {
                 }
             });
         }
-        out.extend(chunks.remainder().iter().map(|b| one(a, b)));
+        match chunks.remainder() {
+            [] => {}
+            [b] => out.push(one(a, b)),
+            // Two or three left: one four-wide pass, the last repeated.
+            rest => {
+                let last = rest[rest.len() - 1];
+                let four = std::array::from_fn(|i| rest.get(i).copied().unwrap_or(last));
+                // SAFETY: as above.
+                let r = unsafe {
+                    if l2 {
+                        x86::l2sq4_avx512(a, four)
+                    } else {
+                        x86::dot4_avx512(a, four)
+                    }
+                };
+                out.extend_from_slice(&r[..rest.len()]);
+            }
+        }
         return;
     }
     out.extend(bs.iter().map(|b| {

@@ -247,13 +247,13 @@ impl FlatGraph {
 
     /// Greedy walk to the closest node on one upper layer.
     fn greedy(&self, g: &Graph, q: &[f32], mut ep: u32, mut d: f32, level: usize) -> (u32, f32) {
+        let mut dists = Vec::with_capacity(self.m);
         loop {
+            let links = self.links(g, ep, level);
+            let links = &links[..links.iter().position(|&n| n == NONE).unwrap_or(links.len())];
+            self.dists(g, q, links, &mut dists);
             let mut moved = false;
-            for &n in self.links(g, ep, level) {
-                if n == NONE {
-                    break;
-                }
-                let dn = self.dist(g, q, n);
+            for (&n, &dn) in links.iter().zip(&dists) {
                 if dn < d {
                     (ep, d, moved) = (n, dn, true);
                 }
