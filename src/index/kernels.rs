@@ -407,7 +407,11 @@ mod x86 {
             }
         };
     }
-    four_kernel!(dot4_avx512, |x, y, acc| _mm512_fmadd_ps(x, y, acc), super::portable::dot);
+    four_kernel!(
+        dot4_avx512,
+        |x, y, acc| _mm512_fmadd_ps(x, y, acc),
+        super::portable::dot
+    );
     four_kernel!(
         l2sq4_avx512,
         |x, y, acc| {
