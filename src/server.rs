@@ -113,6 +113,14 @@ pub struct ServeConfig {
     /// other type is rebuilt.
     #[arg(long, env = "CHOREO_VECTOR_DTYPE", value_enum, default_value = "f32")]
     pub vector_dtype: crate::index::VectorDtype,
+    /// HNSW links per node (`M`; level 0 keeps 2M). An index saved with
+    /// another M is rebuilt.
+    #[arg(long, env = "CHOREO_HNSW_M", default_value_t = crate::index::hnsw::HnswParams::default().m)]
+    pub hnsw_m: usize,
+    /// HNSW candidate list while building (`efConstruction`). An index
+    /// saved with another value is rebuilt.
+    #[arg(long, env = "CHOREO_HNSW_EF_CONSTRUCTION", default_value_t = crate::index::hnsw::HnswParams::default().ef_construction)]
+    pub hnsw_ef_construction: usize,
     /// Megabytes of stored motions' channels kept in memory for queries by
     /// stored id (least recently used leave first; 0: every query reads
     /// its segment from the store).
@@ -240,6 +248,8 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         HnswParams {
             backend: cfg.hnsw_backend,
             dtype: cfg.vector_dtype,
+            m: cfg.hnsw_m,
+            ef_construction: cfg.hnsw_ef_construction,
             ..Default::default()
         },
     )

@@ -378,8 +378,12 @@ impl Searcher {
             .await
             .map_err(|err| fail(err.to_string()))?;
             match loaded {
-                // Built by the other graph: rebuilt with the one configured.
-                Ok(Some(ix)) if ix.params().backend != params.backend => {}
+                // Built by the other graph, or with another M or
+                // ef_construction: rebuilt as configured.
+                Ok(Some(ix))
+                    if ix.params().backend != params.backend
+                        || ix.params().m != params.m
+                        || ix.params().ef_construction != params.ef_construction => {}
                 Ok(Some(ix)) => {
                     let dead = ix.len().saturating_sub(live);
                     return Ok(Entry {

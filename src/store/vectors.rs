@@ -140,8 +140,10 @@ impl Store {
         let row: Option<(i64, Vec<u8>)> = sqlx::query_as(
             "SELECT frames, substr(data, CAST($1 AS INTEGER), CAST($2 AS INTEGER)) FROM motion_channels WHERE motion_id = $3",
         )
-        .bind(start.saturating_mul(row_bytes).saturating_add(1) as i64)
-        .bind(frames.saturating_mul(row_bytes) as i64)
+        // Both are INTEGER (32-bit) to PostgreSQL: "the rest of the motion"
+        // (a huge `frames`) is clamped to the largest, past any blob's end.
+        .bind(start.saturating_mul(row_bytes).saturating_add(1).min(i32::MAX as usize) as i64)
+        .bind(frames.saturating_mul(row_bytes).min(i32::MAX as usize) as i64)
         .bind(motion_id)
         .fetch_optional(&self.pool)
         .await

@@ -30,6 +30,8 @@ pub fn serve_config(dir: &Path) -> ServeConfig {
         hnsw_backend: choreo::index::hnsw::Backend::Flat,
         vector_dtype: choreo::index::VectorDtype::F32,
         channel_cache_mb: choreo::search::DEFAULT_CHANNEL_CACHE_MB,
+        hnsw_m: choreo::index::hnsw::HnswParams::default().m,
+        hnsw_ef_construction: choreo::index::hnsw::HnswParams::default().ef_construction,
         runtime: choreo::lm::engine::Runtime::Tract,
         ort_lib: None,
         tokens: None,
