@@ -375,9 +375,11 @@ mod x86 {
         _mm_cvtss_f32(s)
     }
 
-    /// Four candidates per pass over `a` (see [`super::batch`]): two
-    /// accumulators each; `$step(x, y, acc)`; tails through the portable
-    /// kernel `$tail`.
+    /// Four candidates per pass over `a` (see [`super::batch`]), each
+    /// summed exactly as the one-vector AVX-512 kernel sums it (four
+    /// accumulators, the same steps, reduction and portable tail), so a
+    /// distance is the same bits whichever way it was computed and ties
+    /// between equal vectors break the same way everywhere.
     macro_rules! four_kernel {
         ($name:ident, |$x:ident, $y:ident, $acc:ident| $step:expr, $tail:path) => {
             /// # Safety
@@ -387,26 +389,39 @@ mod x86 {
                 let n = a.len();
                 let pa = a.as_ptr();
                 let pb = b.map(|b| b.as_ptr());
-                let mut acc = [[_mm512_setzero_ps(); 2]; 4];
+                let mut acc = [[_mm512_setzero_ps(); 4]; 4];
                 let mut i = 0;
-                while i + 32 <= n {
+                while i + 64 <= n {
+                    for k in 0..4 {
+                        let xk = _mm512_loadu_ps(pa.add(i + 16 * k));
+                        for c in 0..4 {
+                            let ($x, $y, $acc) =
+                                (xk, _mm512_loadu_ps(pb[c].add(i + 16 * k)), acc[c][k]);
+                            acc[c][k] = $step;
+                        }
+                    }
+                    i += 64;
+                }
+                while i + 16 <= n {
                     let x0 = _mm512_loadu_ps(pa.add(i));
-                    let x1 = _mm512_loadu_ps(pa.add(i + 16));
                     for c in 0..4 {
                         let ($x, $y, $acc) = (x0, _mm512_loadu_ps(pb[c].add(i)), acc[c][0]);
                         acc[c][0] = $step;
-                        let ($x, $y, $acc) = (x1, _mm512_loadu_ps(pb[c].add(i + 16)), acc[c][1]);
-                        acc[c][1] = $step;
                     }
-                    i += 32;
+                    i += 16;
                 }
                 std::array::from_fn(|c| {
-                    _mm512_reduce_add_ps(_mm512_add_ps(acc[c][0], acc[c][1]))
-                        + $tail(&a[i..], &b[c][i..n])
+                    let a4 = acc[c];
+                    let s = _mm512_reduce_add_ps(_mm512_add_ps(
+                        _mm512_add_ps(a4[0], a4[1]),
+                        _mm512_add_ps(a4[2], a4[3]),
+                    ));
+                    s + $tail(&a[i..], &b[c][i..n])
                 })
             }
         };
     }
+
     four_kernel!(
         dot4_avx512,
         |x, y, acc| _mm512_fmadd_ps(x, y, acc),
@@ -460,6 +475,11 @@ mod tests {
                     let mut out = Vec::new();
                     batch(&a, &refs, l2, &mut out);
                     assert_eq!(out.len(), m);
+                    // The same bits as one vector at a time.
+                    for (b, got) in bs.iter().zip(&out) {
+                        let one = if l2 { l2sq(&a, b) } else { dot(&a, b) };
+                        assert_eq!(got.to_bits(), one.to_bits(), "n {n} m {m} l2 {l2}");
+                    }
                     for (b, got) in bs.iter().zip(&out) {
                         let want: f64 = a
                             .iter()
