@@ -214,17 +214,17 @@ pub fn batch(a: &[f32], bs: &[&[f32]], l2: bool, out: &mut Vec<f32>) {
     let one = if l2 { c.l2sq } else { c.dot };
     #[cfg(target_arch = "x86_64")]
     if c.kernel == Kernel::Avx512 && bs.iter().all(|b| b.len() == a.len()) {
+        // SAFETY: AVX-512F was chosen, so the CPU has it; equal lengths.
+        let pass = |four: [&[f32]; 4]| unsafe {
+            if l2 {
+                x86::l2sq4_avx512(a, four)
+            } else {
+                x86::dot4_avx512(a, four)
+            }
+        };
         let mut chunks = bs.chunks_exact(4);
         for four in chunks.by_ref() {
-            let four = [four[0], four[1], four[2], four[3]];
-            // SAFETY: AVX-512F was chosen, so the CPU has it; equal lengths.
-            out.extend(unsafe {
-                if l2 {
-                    x86::l2sq4_avx512(a, four)
-                } else {
-                    x86::dot4_avx512(a, four)
-                }
-            });
+            out.extend(pass([four[0], four[1], four[2], four[3]]));
         }
         match chunks.remainder() {
             [] => {}
@@ -232,15 +232,9 @@ pub fn batch(a: &[f32], bs: &[&[f32]], l2: bool, out: &mut Vec<f32>) {
             // Two or three left: one four-wide pass, the last repeated.
             rest => {
                 let last = rest[rest.len() - 1];
-                let four = std::array::from_fn(|i| rest.get(i).copied().unwrap_or(last));
-                // SAFETY: as above.
-                let r = unsafe {
-                    if l2 {
-                        x86::l2sq4_avx512(a, four)
-                    } else {
-                        x86::dot4_avx512(a, four)
-                    }
-                };
+                let r = pass(std::array::from_fn(|i| {
+                    rest.get(i).copied().unwrap_or(last)
+                }));
                 out.extend_from_slice(&r[..rest.len()]);
             }
         }

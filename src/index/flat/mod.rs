@@ -165,23 +165,27 @@ impl FlatGraph {
     /// scored together ([`kernels::batch`]: one pass over the query for
     /// four of them).
     fn dists(&self, g: &Graph, q: &[f32], nodes: &[u32], out: &mut Vec<f32>) {
-        let d = self.dim;
         match &g.vecs {
-            Vecs::F32(v) => {
-                let rows: Vec<&[f32]> = nodes
-                    .iter()
-                    .map(|&n| &v[n as usize * d..(n as usize + 1) * d])
-                    .collect();
-                let l2 = self.metric == Metric::Euclidean;
-                kernels::batch(q, &rows, l2, out);
-                if !l2 {
-                    out.iter_mut().for_each(|x| *x = 1.0 - *x);
-                }
-            }
+            Vecs::F32(v) => self.dists_f32(v, q, nodes, out),
             _ => {
                 out.clear();
                 out.extend(nodes.iter().map(|&n| self.dist(g, q, n)));
             }
+        }
+    }
+
+    /// The metric's distance from `q` to each of `nodes` in the f32 rows
+    /// `v` (the graph's own, or `f16-refine`'s kept copies).
+    fn dists_f32(&self, v: &[f32], q: &[f32], nodes: &[u32], out: &mut Vec<f32>) {
+        let d = self.dim;
+        let rows: Vec<&[f32]> = nodes
+            .iter()
+            .map(|&n| &v[n as usize * d..(n as usize + 1) * d])
+            .collect();
+        let l2 = self.metric == Metric::Euclidean;
+        kernels::batch(q, &rows, l2, out);
+        if !l2 {
+            out.iter_mut().for_each(|x| *x = 1.0 - *x);
         }
     }
 
@@ -403,13 +407,11 @@ impl FlatGraph {
             // and their scores are exact (a point ranked past 2k by the
             // halves is not closer than the k-th in f32).
             found.truncate(2 * k);
-            let d = self.dim;
-            for (dist, n) in &mut found {
-                let v = &full[*n as usize * d..(*n as usize + 1) * d];
-                *dist = match self.metric {
-                    Metric::Cosine => 1.0 - kernels::dot(q, v),
-                    Metric::Euclidean => kernels::l2sq(q, v),
-                };
+            let nodes: Vec<u32> = found.iter().map(|&(_, n)| n).collect();
+            let mut exact = Vec::with_capacity(nodes.len());
+            self.dists_f32(full, q, &nodes, &mut exact);
+            for ((dist, _), e) in found.iter_mut().zip(exact) {
+                *dist = e;
             }
             found.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         }
