@@ -6,7 +6,17 @@ runtime's own bookkeeping written again here (fixed-capacity caches, the
 mask over unused rows, positions, change codes) and compares every
 teacher-forced logit with what choreo's tract runtime produced.
 Usage: check_frame_onnxruntime.py MODEL_DIR DUMP.json
-DUMP holds {"frames": [[slots]...], "cond": [vocab floats], "rel": [[...]], "abs": [[...]]}.
+DUMP holds {"frames": [[slots]...], "cond": [vocab floats], "rel": [[...]], "abs": [[...]]}
+and, optionally, "classify": choreo's class logits per kind of the frames
+read unconditioned, with "cond_none", its conditioning row for no labels. Then the frames are walked again in onnxruntime with
+no labels, each step's class logits are recomputed in numpy from the
+graph's own weights (read with the onnx package): the state head
+(h - ch) . cls.K.w + cls.K.b, plus, where the graph has a pose path (written
+by choreo-train fit-heads), (v - cv) . wv + (v^2 - cv2) . wv2 + (m - cm) . wm
+(all cls.K.*; a centre the graph lacks is 0) with v = bin / bins and
+m the change magnitude (|offset| inside the radius, radius + 1 for an
+escape, 0 for the first frame) over bins; and the mean over frames is
+compared with choreo's.
 Exit 1 on any disagreement above 1e-4.
 """
 import json, sys
@@ -92,5 +102,43 @@ for fi, frame in enumerate(frames):
     worst = max(worst, float(np.max(np.abs(np.asarray(rel) - np.asarray(dump["rel"][fi])))),
                 float(np.max(np.abs(np.asarray(ab) - np.asarray(dump["abs"][fi])))))
     h = gstep(frame, [change(None if p1 is None else p1[s], frame[s]) for s in range(S)], 0.0)
-print(json.dumps({"onnxruntime": ort.__version__, "frames": len(frames), "max_abs_diff": worst}))
-sys.exit(0 if worst < 1e-4 else 1)
+report = {"onnxruntime": ort.__version__, "frames": len(frames), "max_abs_diff": worst}
+ok = worst < 1e-4
+if "classify" in dump:
+    import onnx
+    from onnx import numpy_helper
+    w = {t.name: numpy_helper.to_array(t) for t in onnx.load(f"{model_dir}/{m['global_onnx']}").graph.initializer}
+    kinds = [k for k, _ in c["classes"]]
+    gc = Cache(c["global_layers"], c["global_heads"], c["max_frames"] + 1, c["d_global"] // c["global_heads"])
+    # The unconditioned walk: choreo's conditioning row for no labels.
+    cond = np.asarray(dump["cond_none"], np.float32)[None]
+    gstep([0] * S, [NONE] * S, 1.0)
+    sums = [np.zeros(len(v)) for _, v in c["classes"]]
+    worst_step = 0.0
+    for fi, frame in enumerate(frames):
+        p1 = frames[fi - 1] if fi > 0 else None
+        chg = [change(None if p1 is None else p1[s], frame[s]) for s in range(S)]
+        f = gc.feeds()
+        f.update({"val": np.asarray([frame], np.int64), "chg": np.asarray([chg], np.int64), "cond": cond,
+                  "is_cond": np.asarray([[0.0]], np.float32), "pos": np.asarray([gc.len], np.int64)})
+        out = g.run(None, f)
+        gc.push(out, gnames)
+        h = out[0].reshape(-1).astype(np.float64)
+        v = np.asarray(frame, np.float64) / c["bins"]
+        mag = np.asarray([abs(x - R) if x <= 2 * R else (R + 1 if x == ESC else 0) for x in chg], np.float64) / c["bins"]
+        for ki, k in enumerate(kinds):
+            z = lambda n: w.get(f"cls.{k}.{n}", 0.0)
+            want = (h - z("ch")) @ w[f"cls.{k}.w"] + w[f"cls.{k}.b"]
+            if f"cls.{k}.wv" in w:
+                want = want + (v - z("cv")) @ w[f"cls.{k}.wv"] + (v * v - z("cv2")) @ w[f"cls.{k}.wv2"] \
+                    + (mag - z("cm")) @ w[f"cls.{k}.wm"]
+            got = out[gnames.index(f"cls_{k}")].reshape(-1)
+            worst_step = max(worst_step, float(np.max(np.abs(got - want))))
+            sums[ki] += got
+    mean_diff = max(float(np.max(np.abs(s_ / len(frames) - np.asarray(dump["classify"][ki]))))
+                    for ki, s_ in enumerate(sums))
+    report.update({"class_step_vs_numpy": worst_step, "class_mean_vs_choreo": mean_diff,
+                   "pose_path": any(f"cls.{k}.wv" in w for k in kinds)})
+    ok = ok and worst_step < 1e-4 and mean_diff < 1e-4
+print(json.dumps(report))
+sys.exit(0 if ok else 1)

@@ -31,6 +31,11 @@ fn config(v: &Vocabulary) -> FrameConfig {
 
 /// A clip with continuity: the elbow and hip swing as sines (60 fps).
 fn sine_motion(frames: usize, phase: f64, style: &str) -> Motion {
+    sine_motion_amp(frames, phase, style, 1.0)
+}
+
+/// [`sine_motion`] with the elbow's swing scaled by `amp`.
+fn sine_motion_amp(frames: usize, phase: f64, style: &str, amp: f64) -> Motion {
     let sk = Skeleton::smpl24();
     let mut rots = vec![[0.0; 3]; frames * 24];
     let mut trans = Vec::new();
@@ -39,7 +44,7 @@ fn sine_motion(frames: usize, phase: f64, style: &str) -> Motion {
         rots[f * 24 + 18] = [
             0.0,
             0.0,
-            0.9 * (2.0 * std::f64::consts::PI * 0.7 * t + phase).sin(),
+            amp * 0.9 * (2.0 * std::f64::consts::PI * 0.7 * t + phase).sin(),
         ];
         rots[f * 24 + 1] = [0.4 * (1.3 * t + phase).sin(), 0.1, 0.0];
         rots[f * 24 + 16] = [0.0, 0.5 * (0.9 * t + 2.0 * phase).cos(), 0.0];
@@ -406,4 +411,73 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         .unwrap()
         .to_string();
     assert!(e.contains("no readable motion"), "{e}");
+}
+
+/// Closed-form class heads: fitted on the exported model's mean states of
+/// a corpus whose styles differ in swing amplitude, written into the
+/// graph (write_model reloads it and checks its classify against the fit
+/// on every held-out window), and they tell the held-out styles apart
+/// where the untrained gradient heads cannot.
+#[test]
+fn closed_form_heads_are_fitted_and_written_into_the_graph() {
+    use choreo::lm::frame_runtime::FrameSession;
+    use choreo::train::frame_heads as fh;
+    let v = vocab();
+    let net = FrameNet::new(config(&v), &Device::Cpu).unwrap();
+    let dir = export(&net, &v);
+    let motions: Vec<(String, Motion)> = (0..10)
+        .map(|i| {
+            let (style, amp) = if i % 2 == 0 { ("happy", 1.0) } else { ("sad", 0.3) };
+            let m = sine_motion_amp(300, i as f64 * 0.7, style, amp);
+            ("synthetic".to_string(), m)
+        })
+        .collect();
+    let c = data::build(motions, &v, 0.3, true, DataInfo::default()).unwrap();
+    let fl = v.frame_len();
+    let session = FrameSession::load(dir.path()).unwrap();
+    let train = fh::read_windows(&session, &c.train, fl, v.bins, true, 2).unwrap();
+    let held = fh::read_windows(&session, &c.val, fl, v.bins, false, 2).unwrap();
+    assert!(train.len() >= 2 * c.train.len(), "mirrors read too");
+    assert!(!held.is_empty());
+    let out = tempfile::tempdir().unwrap();
+    let tract = choreo::lm::engine::Engine::tract();
+    // A head on the state alone, then on the state and the pose statistics
+    // (the graph gains a pose path), then that again (only new weights).
+    for (f, from) in [
+        (fh::Features::State, dir.path()),
+        (fh::Features::StateAndPose, dir.path()),
+        (fh::Features::StateAndPose, out.path()),
+    ] {
+        let (kinds, heads) = fh::fit_heads(&session, &train, &held, f).unwrap();
+        assert_eq!(kinds.len(), 1);
+        let k = &kinds[0];
+        assert_eq!(k.held_out_windows, held.len());
+        // An untrained network's states barely see the swing; the pose
+        // statistics do.
+        let posed = f == fh::Features::StateAndPose;
+        assert!(!posed || k.new_head >= 0.99, "the new head on held-out windows: {k:?}");
+        let report = serde_json::json!({"kinds": kinds});
+        let to = tempfile::tempdir().unwrap();
+        fh::write_model(from, to.path(), &heads, &report, &held, f, &tract).unwrap();
+        // The written model classifies through its own graph, as the server does.
+        let written = FrameSession::load(to.path()).unwrap();
+        for w in held.iter().filter(|_| posed) {
+            let logits = written.classify(&w.values).unwrap();
+            let want = if w.labels["style"] == "happy" { 0 } else { 1 };
+            assert!(logits[0][want] > logits[0][1 - want], "{:?} for {}", logits[0], w.labels["style"]);
+        }
+        for e in std::fs::read_dir(to.path()).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), out.path().join(e.file_name())).unwrap();
+        }
+    }
+    // A state-only head cannot silently drop the pose path.
+    let (_, heads) = fh::fit_heads(&session, &train, &held, fh::Features::State).unwrap();
+    let to = tempfile::tempdir().unwrap();
+    let err = fh::write_model(out.path(), to.path(), &heads, &serde_json::json!({}), &held, fh::Features::State, &tract)
+        .unwrap_err();
+    assert!(err.to_string().contains("pose path"), "{err}");
+    // The original folder is untouched.
+    let again = FrameSession::load(dir.path()).unwrap();
+    assert_eq!(again.manifest.global_sha256, session.manifest.global_sha256);
 }

@@ -103,7 +103,7 @@ fn frame_model_runtime_agrees_with_onnxruntime() {
     use choreo::motion::Labels;
     use choreo::tokenize::vocab::Vocabulary;
     use choreo::train::frame::FrameNet;
-    if !python_with("numpy, onnxruntime") {
+    if !python_with("numpy, onnx, onnxruntime") {
         return;
     }
     let mut labels = std::collections::BTreeMap::new();
@@ -149,16 +149,42 @@ fn frame_model_runtime_agrees_with_onnxruntime() {
                 .collect()
         })
         .collect();
+    // A class head with a pose path (as `choreo-train fit-heads` writes):
+    // the script recomputes its per-step logits in numpy from the graph's
+    // weights and its own pose statistics.
+    let width = 32 + 3 * 42;
+    let head = choreo::train::frame_heads::Linear {
+        weights: (0..2)
+            .map(|c| (0..width).map(|i| ((i * 7 + c * 3) % 11) as f64 / 11.0 - 0.5).collect())
+            .collect(),
+        bias: vec![0.25, -0.5],
+        centre: (0..width).map(|i| (i % 5) as f64 * 0.1).collect(),
+    };
+    let posed = tempfile::tempdir().unwrap();
+    choreo::train::frame_heads::write_model(
+        dir.path(),
+        posed.path(),
+        &[Some(head)],
+        &serde_json::json!({}),
+        &[],
+        choreo::train::frame_heads::Features::StateAndPose,
+        &choreo::lm::engine::Engine::tract(),
+    )
+    .unwrap();
+    let dir = posed;
     let session = FrameSession::load(dir.path()).unwrap();
     let mut l = Labels::new();
     l.insert("style".into(), "sad".into());
     let cond = session.cond(&l).unwrap();
     let out = session.teacher_forced(&cond, &frames).unwrap();
+    let values: Vec<u32> = frames.iter().flatten().copied().collect();
     let dump = serde_json::json!({
         "frames": frames,
         "cond": cond,
         "rel": out.iter().map(|x| &x.0).collect::<Vec<_>>(),
         "abs": out.iter().map(|x| &x.1).collect::<Vec<_>>(),
+        "classify": session.classify(&values).unwrap(),
+        "cond_none": session.cond(&Labels::new()).unwrap(),
     });
     let path = dir.path().join("dump.json");
     std::fs::write(&path, dump.to_string()).unwrap();

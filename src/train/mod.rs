@@ -8,6 +8,7 @@ pub mod export;
 pub mod flat_run;
 pub mod frame;
 pub mod frame_export;
+pub mod frame_heads;
 pub mod frame_run;
 pub mod inbetween;
 pub mod model;

@@ -153,3 +153,62 @@ pub(crate) fn print_frame_table(
     );
     Ok(())
 }
+
+pub(crate) fn fit_heads(
+    model: &Path,
+    data: &DataArgs,
+    out: Option<&Path>,
+    threads: usize,
+    engine: &choreo::lm::engine::Engine,
+) -> Result<()> {
+    use choreo::train::frame_heads as fh;
+    const HEAD: fh::Features = fh::Features::StateAndPose;
+    let session = choreo::lm::frame_runtime::FrameSession::load_with(model, engine)?;
+    let vocab = session.manifest.vocabulary.clone();
+    let (vocab, corpus) = load_corpus(data, Some(&vocab), &[], false, vocab.fps)?;
+    let fl = vocab.frame_len();
+    let t0 = Instant::now();
+    let train = fh::read_windows(&session, &corpus.train, fl, vocab.bins, true, threads)?;
+    let held_out = fh::read_windows(&session, &corpus.val, fl, vocab.bins, false, threads)?;
+    eprintln!(
+        "read {} training windows (mirrors included) and {} held-out windows through the model in {:.0} s",
+        train.len(),
+        held_out.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    let (kinds, heads) = fh::fit_heads(&session, &train, &held_out, HEAD)?;
+    let mut head = String::from("| kind | train / held-out windows | majority | current head |");
+    for (f, baseline) in fh::METHODS {
+        head += &format!(" {}{} |", f.name(), if baseline { " (Table 4.8 LDA)" } else { "" });
+    }
+    eprintln!("{head}");
+    eprintln!("|{}", "---|".repeat(4 + fh::METHODS.len()));
+    for k in &kinds {
+        let mut row = format!(
+            "| {} | {} / {} | {:.1} | {:.1} |",
+            k.kind,
+            k.train_windows,
+            k.held_out_windows,
+            100.0 * k.majority,
+            100.0 * k.current_head
+        );
+        for s in &k.methods {
+            row += &format!(" {:.1} (cv {:.1}, γ {}) |", 100.0 * s.held_out, 100.0 * s.train_cv, s.shrink);
+        }
+        eprintln!("{row}");
+    }
+    let report = serde_json::json!({
+        "method": "shrunk LDA on each 200-frame window's mean global state (read unconditioned through the exported graph) and per-step pose statistics of the graph's own inputs (per slot: mean bin, mean squared bin, mean change magnitude); shrinkage by 5-fold cross-validation grouped by sequence",
+        "head_features": HEAD.name(),
+        "train_windows": train.len(),
+        "held_out_windows": held_out.len(),
+        "corpora": corpus.info.corpora,
+        "kinds": kinds,
+    });
+    if let Some(out) = out {
+        fh::write_model(model, out, &heads, &report, &held_out, HEAD, engine)?;
+        eprintln!("wrote {} (its classify checked against the fit on every held-out window)", out.display());
+    }
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(())
+}

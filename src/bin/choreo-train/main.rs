@@ -225,6 +225,24 @@ enum Cmd {
         #[arg(long)]
         export: Option<PathBuf>,
     },
+    /// Fit an exported frame model's class heads in closed form (shrunk
+    /// LDA on the model's mean global state over each training window,
+    /// read through the runtime) and score them on the held-out windows
+    /// beside the current heads, LDA on token-window statistics and the
+    /// majority class. With --out, write the model with the new heads.
+    FitHeads {
+        /// The exported frame model folder (manifest.json, global.onnx, …).
+        #[arg(long)]
+        model: PathBuf,
+        #[command(flatten)]
+        data: DataArgs,
+        /// Write a copy of the model with the fitted heads here.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Threads reading windows through the model.
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+    },
     /// Read every motion file under DIR and summarise it by corpus.
     Survey {
         #[arg(long, env = "CHOREO_DATA")]
@@ -362,6 +380,12 @@ fn run(cli: Cli) -> Result<()> {
     let engine = choreo::lm::engine::Engine::new(cli.runtime, cli.ort_lib.as_deref())?;
     match cli.cmd {
         Cmd::Survey { data, json } => survey(&data, json),
+        Cmd::FitHeads {
+            model,
+            data,
+            out,
+            threads,
+        } => fit_heads(&model, &data, out.as_deref(), threads, &engine),
         Cmd::Train(a) => train(*a, &engine),
         Cmd::Frame(a) => frame(*a, &engine),
         Cmd::EvalFrame {
