@@ -159,6 +159,7 @@ pub(crate) fn fit_heads(
     data: &DataArgs,
     out: Option<&Path>,
     threads: usize,
+    mirrors: bool,
     engine: &choreo::lm::engine::Engine,
 ) -> Result<()> {
     use choreo::train::frame_heads as fh;
@@ -168,11 +169,12 @@ pub(crate) fn fit_heads(
     let (vocab, corpus) = load_corpus(data, Some(&vocab), &[], false, vocab.fps)?;
     let fl = vocab.frame_len();
     let t0 = Instant::now();
-    let train = fh::read_windows(&session, &corpus.train, fl, vocab.bins, true, threads)?;
+    let train = fh::read_windows(&session, &corpus.train, fl, vocab.bins, mirrors, threads)?;
     let held_out = fh::read_windows(&session, &corpus.val, fl, vocab.bins, false, threads)?;
     eprintln!(
-        "read {} training windows (mirrors included) and {} held-out windows through the model in {:.0} s",
+        "read {} training windows{} and {} held-out windows through the model in {:.0} s",
         train.len(),
+        if mirrors { " (mirrors included)" } else { "" },
         held_out.len(),
         t0.elapsed().as_secs_f64()
     );
@@ -201,6 +203,7 @@ pub(crate) fn fit_heads(
         "method": "shrunk LDA on each 200-frame window's mean global state (read unconditioned through the exported graph) and per-step pose statistics of the graph's own inputs (per slot: mean bin, mean squared bin, mean change magnitude); shrinkage by 5-fold cross-validation grouped by sequence",
         "head_features": HEAD.name(),
         "train_windows": train.len(),
+        "mirrors": mirrors,
         "held_out_windows": held_out.len(),
         "corpora": corpus.info.corpora,
         "kinds": kinds,
