@@ -199,6 +199,14 @@ pub(crate) fn fit_heads(
         }
         eprintln!("{row}");
     }
+    for k in &kinds {
+        if let Some(c) = &k.calibration {
+            eprintln!(
+                "{}: temperature {:.2} (out-of-fold log-loss {:.3} nats, untempered {:.3})",
+                k.kind, c.temperature, c.cv_log_loss, c.cv_log_loss_untempered
+            );
+        }
+    }
     let report = serde_json::json!({
         "method": "shrunk LDA on each 200-frame window's mean global state (read unconditioned through the exported graph) and per-step pose statistics of the graph's own inputs (per slot: mean bin, mean squared bin, mean change magnitude); shrinkage by 5-fold cross-validation grouped by sequence",
         "head_features": HEAD.name(),
