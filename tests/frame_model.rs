@@ -427,7 +427,11 @@ fn closed_form_heads_are_fitted_and_written_into_the_graph() {
     let dir = export(&net, &v);
     let motions: Vec<(String, Motion)> = (0..10)
         .map(|i| {
-            let (style, amp) = if i % 2 == 0 { ("happy", 1.0) } else { ("sad", 0.3) };
+            let (style, amp) = if i % 2 == 0 {
+                ("happy", 1.0)
+            } else {
+                ("sad", 0.3)
+            };
             let m = sine_motion_amp(300, i as f64 * 0.7, style, amp);
             ("synthetic".to_string(), m)
         })
@@ -455,7 +459,10 @@ fn closed_form_heads_are_fitted_and_written_into_the_graph() {
         // An untrained network's states barely see the swing; the pose
         // statistics do.
         let posed = f == fh::Features::StateAndPose;
-        assert!(!posed || k.new_head >= 0.99, "the new head on held-out windows: {k:?}");
+        assert!(
+            !posed || k.new_head >= 0.99,
+            "the new head on held-out windows: {k:?}"
+        );
         let report = serde_json::json!({"kinds": kinds});
         let to = tempfile::tempdir().unwrap();
         fh::write_model(from, to.path(), &heads, &report, &held, f, &tract).unwrap();
@@ -464,7 +471,12 @@ fn closed_form_heads_are_fitted_and_written_into_the_graph() {
         for w in held.iter().filter(|_| posed) {
             let logits = written.classify(&w.values).unwrap();
             let want = if w.labels["style"] == "happy" { 0 } else { 1 };
-            assert!(logits[0][want] > logits[0][1 - want], "{:?} for {}", logits[0], w.labels["style"]);
+            assert!(
+                logits[0][want] > logits[0][1 - want],
+                "{:?} for {}",
+                logits[0],
+                w.labels["style"]
+            );
         }
         for e in std::fs::read_dir(to.path()).unwrap() {
             let e = e.unwrap();
@@ -474,8 +486,16 @@ fn closed_form_heads_are_fitted_and_written_into_the_graph() {
     // A state-only head cannot silently drop the pose path.
     let (_, heads) = fh::fit_heads(&session, &train, &held, fh::Features::State).unwrap();
     let to = tempfile::tempdir().unwrap();
-    let err = fh::write_model(out.path(), to.path(), &heads, &serde_json::json!({}), &held, fh::Features::State, &tract)
-        .unwrap_err();
+    let err = fh::write_model(
+        out.path(),
+        to.path(),
+        &heads,
+        &serde_json::json!({}),
+        &held,
+        fh::Features::State,
+        &tract,
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("pose path"), "{err}");
     // The original folder is untouched.
     let again = FrameSession::load(dir.path()).unwrap();

@@ -155,7 +155,11 @@ fn frame_model_runtime_agrees_with_onnxruntime() {
     let width = 32 + 3 * 42;
     let head = choreo::train::frame_heads::Linear {
         weights: (0..2)
-            .map(|c| (0..width).map(|i| ((i * 7 + c * 3) % 11) as f64 / 11.0 - 0.5).collect())
+            .map(|c| {
+                (0..width)
+                    .map(|i| ((i * 7 + c * 3) % 11) as f64 / 11.0 - 0.5)
+                    .collect()
+            })
             .collect(),
         bias: vec![0.25, -0.5],
         centre: (0..width).map(|i| (i % 5) as f64 * 0.1).collect(),

@@ -718,7 +718,10 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             .await
             .unwrap();
     assert_eq!(status, 200, "{rc}");
-    eprintln!("classify {}: {}", "gBR_sBM_cAll_d04_mBR2_ch08", rc["classes"]);
+    eprintln!(
+        "classify {}: {}",
+        "gBR_sBM_cAll_d04_mBR2_ch08", rc["classes"]
+    );
     let gc = client
         .classify(pb::ClassifyRequest {
             motion: Some(upload),

@@ -184,7 +184,10 @@ impl Linear {
         self.scores(x)
             .into_iter()
             .enumerate()
-            .fold((0, f64::NEG_INFINITY), |b, (i, s)| if s > b.1 { (i, s) } else { b })
+            .fold(
+                (0, f64::NEG_INFINITY),
+                |b, (i, s)| if s > b.1 { (i, s) } else { b },
+            )
             .0
     }
 }
@@ -314,7 +317,10 @@ pub fn calibrate(scores: &[Option<Vec<f64>>], y: &[usize]) -> (f64, f64, f64) {
     (0..=56)
         .map(|i| 0.25 * 2f64.powf(i as f64 / 4.0))
         .map(|t| (t, log_loss(scores, y, t)))
-        .fold((1.0, at1, at1), |b, (t, l)| if l < b.1 { (t, l, at1) } else { b })
+        .fold(
+            (1.0, at1, at1),
+            |b, (t, l)| if l < b.1 { (t, l, at1) } else { b },
+        )
 }
 
 impl Linear {
@@ -471,7 +477,10 @@ pub fn fit_heads(
                 .map(|l| {
                     l.iter()
                         .enumerate()
-                        .fold((0, f32::NEG_INFINITY), |b, (i, &v)| if v > b.1 { (i, v) } else { b })
+                        .fold(
+                            (0, f32::NEG_INFINITY),
+                            |b, (i, &v)| if v > b.1 { (i, v) } else { b },
+                        )
                         .0
                 })
                 .collect(),
@@ -494,7 +503,11 @@ pub fn fit_heads(
         let majority = acc(vy.iter().filter(|&&c| c == major).count());
         let mut cur_hits = 0;
         for (w, pred) in held_out.iter().zip(&current) {
-            if let Some(c) = w.labels.get(kind).and_then(|v| values.iter().position(|x| x == v)) {
+            if let Some(c) = w
+                .labels
+                .get(kind)
+                .and_then(|v| values.iter().position(|x| x == v))
+            {
                 cur_hits += (pred[ki] == c) as usize;
             }
         }
@@ -564,14 +577,23 @@ pub fn fit_heads(
 }
 
 /// Sets an initialiser's data, checking its shape.
-fn set_init(graph: &mut tract_onnx::pb::GraphProto, name: &str, dims: &[i64], data: &[f32]) -> Result<()> {
+fn set_init(
+    graph: &mut tract_onnx::pb::GraphProto,
+    name: &str,
+    dims: &[i64],
+    data: &[f32],
+) -> Result<()> {
     let init = graph
         .initializer
         .iter_mut()
         .find(|t| t.name == name)
         .with_context(|| format!("the global graph has no initialiser {name}"))?;
     if init.dims != dims {
-        bail!("{name}: the graph's shape {:?}, the fit's {:?}", init.dims, dims);
+        bail!(
+            "{name}: the graph's shape {:?}, the fit's {:?}",
+            init.dims,
+            dims
+        );
     }
     init.float_data.clear();
     init.raw_data = data.iter().flat_map(|v| v.to_le_bytes()).collect();
@@ -597,7 +619,10 @@ pub fn rewrite_heads(
     let (d, slots) = (cfg.d_global, cfg.slots);
     let mut proto =
         tract_onnx::pb::ModelProto::decode(onnx).context("the global graph is not ONNX")?;
-    let graph = proto.graph.as_mut().context("the global graph has no graph")?;
+    let graph = proto
+        .graph
+        .as_mut()
+        .context("the global graph has no graph")?;
     let has = |g: &tract_onnx::pb::GraphProto, n: &str| g.initializer.iter().any(|t| t.name == n);
     let mut tail = Builder::default();
     let mut shared = false;
@@ -655,7 +680,11 @@ pub fn rewrite_heads(
             pre.f32(&name("ch"), &[d], centre(0, d, 1));
             let hc = format!("cls_{kind}_centred");
             pre.op("Sub", &[&x, &name("ch")], vec![], Some(&hc));
-            graph.node[at].input.iter_mut().filter(|i| **i == x).for_each(|i| *i = hc.clone());
+            graph.node[at]
+                .input
+                .iter_mut()
+                .filter(|i| **i == x)
+                .for_each(|i| *i = hc.clone());
             let mut sub = pre.nodes.pop().expect("one node");
             sub.name = format!("cls_{kind}_centre_Sub");
             graph.node.insert(at, sub);
@@ -666,8 +695,16 @@ pub fn rewrite_heads(
         }
         let ws = ["wv", "wv2", "wm"].map(name);
         let cs = ["cv", "cv2", "cm"].map(name);
-        let wblocks = [block(d, slots, 3), block(d + 1, slots, 3), block(d + 2, slots, 3)];
-        let cblocks = [centre(d, slots, 3), centre(d + 1, slots, 3), centre(d + 2, slots, 3)];
+        let wblocks = [
+            block(d, slots, 3),
+            block(d + 1, slots, 3),
+            block(d + 2, slots, 3),
+        ];
+        let cblocks = [
+            centre(d, slots, 3),
+            centre(d + 1, slots, 3),
+            centre(d + 2, slots, 3),
+        ];
         if has(graph, &ws[0]) {
             for (n, w) in ws.iter().zip(&wblocks) {
                 set_init(graph, n, &[slots as i64, nc as i64], w)?;
@@ -684,7 +721,10 @@ pub fn rewrite_heads(
             .iter_mut()
             .find(|n| n.output.iter().any(|o| *o == out))
             .with_context(|| format!("the global graph has no node giving {out}"))?;
-        node.output.iter_mut().filter(|o| **o == out).for_each(|o| *o = state.clone());
+        node.output
+            .iter_mut()
+            .filter(|o| **o == out)
+            .for_each(|o| *o = state.clone());
         let g = &mut tail;
         if !shared {
             shared = true;
@@ -693,18 +733,45 @@ pub fn rewrite_heads(
                 .collect();
             g.f32("pose_mag_table", &[mags.len()], mags);
             g.scalar("pose_inv_bins", 1.0 / cfg.bins as f32);
-            let vf = g.op("Cast", &["val"], vec![attr_i("to", DataType::Float as i64)], Some("pose_val_f"));
+            let vf = g.op(
+                "Cast",
+                &["val"],
+                vec![attr_i("to", DataType::Float as i64)],
+                Some("pose_val_f"),
+            );
             g.op("Mul", &[&vf, "pose_inv_bins"], vec![], Some("pose_v"));
             g.op("Mul", &["pose_v", "pose_v"], vec![], Some("pose_v2"));
-            g.op("Gather", &["pose_mag_table", "chg"], vec![attr_i("axis", 0)], Some("pose_m"));
+            g.op(
+                "Gather",
+                &["pose_mag_table", "chg"],
+                vec![attr_i("axis", 0)],
+                Some("pose_m"),
+            );
         }
         let mut sum = state.clone();
-        for (i, (src, part)) in [("pose_v", "v"), ("pose_v2", "v2"), ("pose_m", "m")].into_iter().enumerate() {
+        for (i, (src, part)) in [("pose_v", "v"), ("pose_v2", "v2"), ("pose_m", "m")]
+            .into_iter()
+            .enumerate()
+        {
             g.f32(&ws[i], &[slots, nc], wblocks[i].clone());
             g.f32(&cs[i], &[slots], cblocks[i].clone());
-            let c = g.op("Sub", &[src, &cs[i]], vec![], Some(&format!("pose_{kind}_{part}_c")));
-            let t = g.op("MatMul", &[&c, &ws[i]], vec![], Some(&format!("pose_{kind}_{part}")));
-            let o = if i == 2 { out.clone() } else { format!("pose_{kind}_{part}_sum") };
+            let c = g.op(
+                "Sub",
+                &[src, &cs[i]],
+                vec![],
+                Some(&format!("pose_{kind}_{part}_c")),
+            );
+            let t = g.op(
+                "MatMul",
+                &[&c, &ws[i]],
+                vec![],
+                Some(&format!("pose_{kind}_{part}")),
+            );
+            let o = if i == 2 {
+                out.clone()
+            } else {
+                format!("pose_{kind}_{part}_sum")
+            };
             sum = g.op("Add", &[&sum, &t], vec![], Some(&o));
         }
     }
@@ -744,13 +811,18 @@ pub fn write_model(
     if let serde_json::Value::Object(t) = &mut m.training {
         t.insert("class_heads".into(), report.clone());
     }
-    for (k, acc, n) in report["kinds"].as_array().into_iter().flatten().filter_map(|r| {
-        Some((
-            r["kind"].as_str()?.to_string(),
-            r["new_head"].as_f64()?,
-            r["held_out_windows"].as_f64()?,
-        ))
-    }) {
+    for (k, acc, n) in report["kinds"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|r| {
+            Some((
+                r["kind"].as_str()?.to_string(),
+                r["new_head"].as_f64()?,
+                r["held_out_windows"].as_f64()?,
+            ))
+        })
+    {
         m.metrics.insert(format!("val_accuracy_{k}"), acc);
         m.metrics.insert(format!("val_windows_{k}"), n);
     }
@@ -796,11 +868,17 @@ mod tests {
             y.push(c);
         }
         let raw = fit_lda(&x, &y, 3, 0.1).unwrap();
-        let hits = x.iter().zip(&y).filter(|(xi, &c)| raw.predict(xi) == c).count();
+        let hits = x
+            .iter()
+            .zip(&y)
+            .filter(|(xi, &c)| raw.predict(xi) == c)
+            .count();
         assert!(hits >= 290, "{hits} of 300");
         // The same scores as the discriminant fitted on z-scores.
         let n = x.len() as f64;
-        let mu: Vec<f64> = (0..3).map(|j| x.iter().map(|r| r[j]).sum::<f64>() / n).collect();
+        let mu: Vec<f64> = (0..3)
+            .map(|j| x.iter().map(|r| r[j]).sum::<f64>() / n)
+            .collect();
         let sd: Vec<f64> = (0..3)
             .map(|j| (x.iter().map(|r| (r[j] - mu[j]).powi(2)).sum::<f64>() / n).sqrt())
             .collect();
@@ -813,7 +891,12 @@ mod tests {
             let scores = raw.scores(xi);
             for c in 0..3 {
                 let a = scores[c];
-                let b = std.weights[c].iter().zip(zi).map(|(w, v)| w * v).sum::<f64>() + std.offsets[c];
+                let b = std.weights[c]
+                    .iter()
+                    .zip(zi)
+                    .map(|(w, v)| w * v)
+                    .sum::<f64>()
+                    + std.offsets[c];
                 assert!((a - b).abs() < 1e-6 * (1.0 + b.abs()), "{a} vs {b}");
             }
         }

@@ -181,7 +181,11 @@ pub(crate) fn fit_heads(
     let (kinds, heads) = fh::fit_heads(&session, &train, &held_out, HEAD)?;
     let mut head = String::from("| kind | train / held-out windows | majority | current head |");
     for (f, baseline) in fh::METHODS {
-        head += &format!(" {}{} |", f.name(), if baseline { " (Table 4.8 LDA)" } else { "" });
+        head += &format!(
+            " {}{} |",
+            f.name(),
+            if baseline { " (Table 4.8 LDA)" } else { "" }
+        );
     }
     eprintln!("{head}");
     eprintln!("|{}", "---|".repeat(4 + fh::METHODS.len()));
@@ -195,7 +199,12 @@ pub(crate) fn fit_heads(
             100.0 * k.current_head
         );
         for s in &k.methods {
-            row += &format!(" {:.1} (cv {:.1}, γ {}) |", 100.0 * s.held_out, 100.0 * s.train_cv, s.shrink);
+            row += &format!(
+                " {:.1} (cv {:.1}, γ {}) |",
+                100.0 * s.held_out,
+                100.0 * s.train_cv,
+                s.shrink
+            );
         }
         eprintln!("{row}");
     }
@@ -218,7 +227,10 @@ pub(crate) fn fit_heads(
     });
     if let Some(out) = out {
         fh::write_model(model, out, &heads, &report, &held_out, HEAD, engine)?;
-        eprintln!("wrote {} (its classify checked against the fit on every held-out window)", out.display());
+        eprintln!(
+            "wrote {} (its classify checked against the fit on every held-out window)",
+            out.display()
+        );
     }
     println!("{}", serde_json::to_string_pretty(&report)?);
     Ok(())
