@@ -339,14 +339,17 @@ pub fn fit_heads(
             // The Table 4.8 baseline keeps its shrinkage; the rest choose
             // theirs by cross-validation.
             let grid: &[f64] = if baseline { &[0.1] } else { &SHRINKS };
-            let (shrink, cv) = grid
-                .iter()
-                .map(|&s| (s, grouped_cv(&tx, &ty, &tg, 5, |x, y| fit(x, y, s))))
-                .fold((grid[0], -1.0), |b, c| if c.1 > b.1 { c } else { b });
+            // The chosen shrinkage's out-of-fold scores also set the
+            // head's temperature.
+            let mut runs = grid.iter().map(|&s| {
+                let (acc, oof) = grouped_cv_scores(&tx, &ty, &tg, 5, |x, y| fit(x, y, s));
+                (s, acc, oof)
+            });
+            let first = runs.next().expect("a shrinkage grid");
+            let (shrink, cv, oof) = runs.fold(first, |b, c| if c.1 > b.1 { c } else { b });
             let mut model = fit(&tx, &ty, shrink).context("the discriminant has no solution")?;
             let is_head = f == head_features && !baseline;
             if is_head {
-                let (_, oof) = grouped_cv_scores(&tx, &ty, &tg, 5, |x, y| fit(x, y, shrink));
                 let (t, loss, loss1) = calibrate(&oof, &ty);
                 calibration = Some(Calibration {
                     temperature: t,
