@@ -454,7 +454,7 @@ async fn live_writes_reach_queries_at_once() {
     assert!(hits.iter().all(|h| h.motion_id != motion_id));
 }
 
-/// The `lm` embedding (the bundled frame model's pooled states): refused
+/// The `lm` embedding (the bundled frame model's class heads' reading of a window): refused
 /// clearly without a model; with one, the first `lm` query embeds every
 /// stored window once (stored with the model's fingerprint), a window
 /// finds itself, HNSW equals exact, a live ingest carries its `lm`

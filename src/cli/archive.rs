@@ -41,7 +41,7 @@ pub struct IngestArgs {
     #[arg(long, default_value = "default")]
     pub collection: String,
     /// A frame model folder: every stored window also gets its `lm`
-    /// vector from it (the model's pooled states), so `query --embedding
+    /// vector from it (its class heads' reading), so `query --embedding
     /// lm` and a server with the same model find them ready.
     #[arg(long)]
     pub model: Option<PathBuf>,

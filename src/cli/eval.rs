@@ -80,6 +80,11 @@ pub enum EvalCmd {
         /// values (STFT) are left out.
         #[arg(long, default_value_t = 0)]
         whiten: usize,
+        /// What --whiten separates: sequence (no labels), or a label kind
+        /// (a supervised LDA on that label's values, fitted on the training
+        /// sequences: the fair comparator of an embedding trained with labels).
+        #[arg(long, default_value = "sequence")]
+        whiten_by: eval_q::WhitenBy,
         #[arg(long)]
         json: bool,
     },
@@ -144,6 +149,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             queries,
             model,
             whiten,
+            whiten_by,
             json,
         } => eval_query(
             data,
@@ -151,7 +157,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             embedding,
             hop,
             k,
-            (same_sequence, queries, whiten),
+            (same_sequence, queries, whiten, whiten_by),
             model,
             json,
         ),
@@ -193,7 +199,12 @@ fn eval_query(
     embedding: Vec<String>,
     hop: usize,
     k: usize,
-    (same, queries, whiten): (eval_q::SameSequence, eval_q::Queries, usize),
+    (same, queries, whiten, whiten_by): (
+        eval_q::SameSequence,
+        eval_q::Queries,
+        usize,
+        eval_q::WhitenBy,
+    ),
     model: Option<PathBuf>,
     json: bool,
 ) -> Result<()> {
@@ -234,7 +245,12 @@ fn eval_query(
     let t = std::time::Instant::now();
     let mut corpus = eval_q::build_corpus_with(&files, &group, hop, &embeddings, lm.as_ref());
     if whiten > 0 {
-        eval_q::whiten(&mut corpus, whiten, 1e-2);
+        if let eval_q::WhitenBy::Label(l) = &whiten_by {
+            if !corpus.labels.iter().any(|x| x.contains_key(l)) {
+                bail!("--whiten-by: no window has the label '{l}'");
+            }
+        }
+        eval_q::whiten(&mut corpus, whiten, 1e-2, &whiten_by);
     }
     if corpus.sequence.is_empty() {
         bail!(

@@ -168,12 +168,49 @@ pub fn build_corpus_with(
 /// `d × d`).
 pub const MAX_WHITEN_DIM: usize = 2048;
 
-/// Replaces every embedding's vectors by their sequence whitening
-/// ([`crate::features::whiten`]) with `k` directions, fitted on the windows
-/// of the training (not held-out) sequences only; embeddings wider than
+/// What a whitening's classes are.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum WhitenBy {
+    /// Each sequence is a class: no labels used.
+    Sequence,
+    /// The value of this label kind is the class (a supervised LDA, the
+    /// fair comparator of an embedding fitted with labels); windows
+    /// without the label stay out of the fit.
+    Label(String),
+}
+
+impl std::str::FromStr for WhitenBy {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim() {
+            "" => Err("empty (want sequence or a label kind)".into()),
+            "sequence" => Ok(WhitenBy::Sequence),
+            l => Ok(WhitenBy::Label(l.to_string())),
+        }
+    }
+}
+
+/// Replaces every embedding's vectors by their whitening
+/// ([`crate::features::whiten`]) with `k` directions, the classes being
+/// sequences or a label's values (`by`), fitted on the windows of the
+/// training (not held-out) sequences only; embeddings wider than
 /// [`MAX_WHITEN_DIM`], or that cannot be fitted, are removed and said in
 /// `errors`.
-pub fn whiten(corpus: &mut Corpus, k: usize, shrink: f64) {
+pub fn whiten(corpus: &mut Corpus, k: usize, shrink: f64, by: &WhitenBy) {
+    let class: Vec<Option<usize>> = match by {
+        WhitenBy::Sequence => corpus.sequence.iter().map(|&s| Some(s)).collect(),
+        WhitenBy::Label(kind) => {
+            let mut ids: HashMap<&str, usize> = HashMap::new();
+            corpus
+                .labels
+                .iter()
+                .map(|l| {
+                    let n = ids.len();
+                    l.get(kind).map(|v| *ids.entry(v.as_str()).or_insert(n))
+                })
+                .collect()
+        }
+    };
     let kinds: Vec<Embedding> = corpus.vectors.keys().copied().collect();
     for e in kinds {
         let v = &corpus.vectors[&e];
@@ -188,10 +225,9 @@ pub fn whiten(corpus: &mut Corpus, k: usize, shrink: f64) {
         }
         let (fit, seq): (Vec<&[f32]>, Vec<usize>) = v
             .iter()
-            .zip(&corpus.sequence)
+            .zip(&class)
             .zip(&corpus.held_out)
-            .filter(|(_, held)| !**held)
-            .map(|((x, s), _)| (x.as_slice(), *s))
+            .filter_map(|((x, c), held)| (!*held).then_some((x.as_slice(), (*c)?)))
             .unzip();
         match crate::features::whiten::Whitening::fit(&fit, &seq, k, shrink) {
             Some(w) => {

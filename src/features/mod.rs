@@ -48,7 +48,7 @@ pub enum Embedding {
     Dct,
     Pca,
     Pose,
-    /// The frame model's pooled global states ([`crate::lm::embed`]);
+    /// What the frame model's class heads read in the window ([`crate::lm::embed`]);
     /// only where a frame model is loaded.
     Lm,
 }

@@ -1,8 +1,19 @@
-//! The model's state as a search embedding (`lm`): a window of motion is
-//! tokenized on its own (SMPL-13 at the model's frame rate), run through
-//! the frame model's global transformer with no labels, and its per-frame
-//! states pooled ([`FrameSession::pooled_states`]: the mean state and the
-//! mean absolute change from frame to frame).
+//! The model's reading of a window as a search embedding (`lm`): a window
+//! of motion is tokenized on its own (SMPL-13 at the model's frame rate),
+//! run through the frame model's global transformer with no labels, and
+//! described by what the model's class heads make of it: per label kind,
+//! the square roots of the tempered class probabilities
+//! ([`FrameSession::classify`], the mean of each step's logits), all kinds
+//! concatenated. Each kind's block has unit length, so every kind weighs
+//! the same in a cosine, and the dot product of two blocks is their
+//! Bhattacharyya coefficient: windows are near when the model would label
+//! them alike, with its doubt included.
+//!
+//! The pooled states alone ([`FrameSession::pooled_states`], the first
+//! version of `lm`) were measured too and lost to the spectral embeddings:
+//! a model trained to predict the next frame encodes what the body does
+//! now, which many performers share (README, "The frame model's states as
+//! a search embedding").
 //!
 //! It reads the same window as the spectral embeddings: 128 frames of the
 //! 72 SMPL-24 rotation channels at 60 fps ([`crate::features::window`]),
@@ -19,12 +30,24 @@ use crate::features::{CHANNELS, FEATURE_FPS, WINDOW};
 use crate::motion::{Labels, Motion, Skeleton};
 use std::sync::Arc;
 
+/// Per kind, the square roots of the softmax of its logits, concatenated.
+fn hellinger(logits: &[Vec<f32>]) -> Vec<f32> {
+    let mut out = Vec::with_capacity(logits.iter().map(Vec::len).sum());
+    for l in logits {
+        let m = l.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let e: Vec<f64> = l.iter().map(|x| ((x - m) as f64).exp()).collect();
+        let z: f64 = e.iter().sum();
+        out.extend(e.iter().map(|x| (x / z).sqrt() as f32));
+    }
+    out
+}
+
 /// A frame model ready to embed windows; cheap to clone.
 #[derive(Clone)]
 pub struct LmEmbedder {
     session: Arc<FrameSession>,
-    /// The model's identity: its manifest hash, stored with the vectors so
-    /// that a changed model re-embeds the archive.
+    /// The model's identity and the pooling's version, stored with the
+    /// vectors so that a changed model (or pooling) re-embeds the archive.
     fingerprint: String,
 }
 
@@ -35,7 +58,7 @@ impl LmEmbedder {
         match model {
             MotionModel::Frame(s) => Ok(LmEmbedder {
                 session: s.clone(),
-                fingerprint: format!("lm-{}", s.manifest.global_sha256),
+                fingerprint: format!("lm2-{}", s.manifest.global_sha256),
             }),
             MotionModel::Flat(_) => Err(LmError::invalid(
                 "model",
@@ -49,9 +72,14 @@ impl LmEmbedder {
         &self.fingerprint
     }
 
-    /// Dimensions of a vector.
+    /// Dimensions of a vector: one per class of every label kind.
     pub fn dim(&self) -> usize {
-        2 * self.session.config().d_global
+        self.session
+            .config()
+            .classes
+            .iter()
+            .map(|(_, v)| v.len())
+            .sum()
     }
 
     /// The `lm` vector of one window, channel-major `[72][128]`.
@@ -86,7 +114,7 @@ impl LmEmbedder {
             .chunks_exact(vocab.frame_len())
             .flat_map(|f| f[..slots].iter().copied())
             .collect();
-        self.session.pooled_states(&values)
+        Ok(hellinger(&self.session.classify(&values)?))
     }
 
     /// [`LmEmbedder::window`] of many windows, split across the cores.
@@ -113,5 +141,22 @@ impl LmEmbedder {
             }
             Ok(out)
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::hellinger;
+
+    #[test]
+    fn each_kind_is_a_unit_block_of_root_probabilities() {
+        let v = hellinger(&[vec![0.0, (3f32).ln()], vec![1.0, 1.0, 1.0, 1.0]]);
+        let want = [0.5, 0.75f32.sqrt(), 0.5, 0.5, 0.5, 0.5];
+        for (a, b) in v.iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{v:?}");
+        }
+        // Large logits do not overflow.
+        let v = hellinger(&[vec![1e4, 0.0]]);
+        assert!((v[0] - 1.0).abs() < 1e-6 && v[1] == 0.0);
     }
 }

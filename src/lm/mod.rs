@@ -22,6 +22,7 @@ pub mod embed;
 pub mod engine;
 pub mod exemplars;
 pub mod frame;
+pub mod frame_generator;
 pub mod frame_runtime;
 pub mod generate;
 pub mod inbetween;

@@ -1,0 +1,288 @@
+//! The frame model's generator: one global step and one local step per
+//! slot a frame, the global window sliding by halves (the next window's
+//! cache filled as its frames come, so a slide costs no burst), optional
+//! classifier-free guidance (two global tracks) and label steering
+//! through the class heads' pose path ([`super::frame_steer`]).
+
+use super::engine::Cache;
+use super::frame::{local_context, FrameConfig};
+use super::frame_runtime::{FrameSession, Step};
+use super::generate::Sampling;
+use super::LmError;
+use crate::motion::Labels;
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use std::sync::Arc;
+
+/// One conditioning's side of the global transformer: its run state, its
+/// conditioning row, the window's cache, the next window's cache (the
+/// conditioning and the frames that will be kept at the next slide, filled
+/// one frame at a time while the current window decodes, so a slide costs
+/// no burst of work) and the latest global state.
+struct Track {
+    st: Step,
+    cond: Vec<f32>,
+    cache: Cache,
+    next: Option<Cache>,
+    h: Vec<f32>,
+}
+
+/// A running generation with the frame model: the global track (two under
+/// guidance: the request's labels and none), the frames in the global
+/// window, the last two frames and the random state.
+pub struct FrameGenerator {
+    session: Arc<FrameSession>,
+    tracks: Vec<Track>,
+    lstate: Step,
+    /// Frames in the global cache (after the conditioning row).
+    window: Vec<Vec<u32>>,
+    /// The frame before the window's first one, if any (its change codes).
+    before: Option<Vec<u32>>,
+    /// The state the next frame is decoded from (guided when two tracks).
+    h: Vec<f32>,
+    rng: StdRng,
+    sampling: Sampling,
+    pub produced: usize,
+}
+
+impl FrameGenerator {
+    /// Starts from the labels (errors name unknown kinds and values),
+    /// continuing `seed_tokens` (whole frames of the vocabulary's
+    /// `frame_len` tokens; the last half-window is kept).
+    pub fn new(
+        session: Arc<FrameSession>,
+        labels: &Labels,
+        seed_tokens: &[u32],
+        sampling: Sampling,
+    ) -> Result<FrameGenerator, LmError> {
+        sampling.validate()?;
+        let cond = session.cond(labels)?;
+        let c = session.config().clone();
+        let fl = c.slots + 1;
+        if seed_tokens.len() % fl != 0 {
+            return Err(LmError::invalid("request", "seed", "not whole frames"));
+        }
+        let frames: Vec<Vec<u32>> = seed_tokens
+            .chunks_exact(fl)
+            .map(|f| f[..c.slots].to_vec())
+            .collect();
+        if let Some(bad) = frames.iter().flatten().find(|&&t| t as usize >= c.bins) {
+            return Err(LmError::invalid(
+                "request",
+                "seed",
+                format!("token {bad} is not a value token"),
+            ));
+        }
+        let keep = (c.max_frames / 2).max(1).min(frames.len());
+        // Guidance needs labels to steer by and a model trained with the
+        // conditioning dropped; otherwise it is plain conditioning.
+        let guided = sampling.guidance != 1.0 && !labels.is_empty() && c.cond_every;
+        let mut conds = vec![cond];
+        if guided {
+            conds.push(session.cond(&Labels::new())?);
+        }
+        let (_, lstate) = session.states()?;
+        let tracks = conds
+            .into_iter()
+            .map(|cond| -> Result<Track, LmError> {
+                Ok(Track {
+                    st: session.states()?.0,
+                    cond,
+                    cache: session.new_global_cache(),
+                    next: None,
+                    h: Vec::new(),
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut g = FrameGenerator {
+            session,
+            tracks,
+            lstate,
+            window: frames[frames.len() - keep..].to_vec(),
+            before: (frames.len() > keep).then(|| frames[frames.len() - keep - 1].clone()),
+            h: Vec::new(),
+            rng: StdRng::seed_from_u64(sampling.seed),
+            sampling,
+            produced: 0,
+        };
+        g.encode_window()?;
+        Ok(g)
+    }
+
+    /// The state the local decoder reads: the conditioned track's, or under
+    /// guidance `h_u + w (h_c − h_u)`.
+    fn mix(&mut self) {
+        let w = self.sampling.guidance as f32;
+        match self.tracks.as_slice() {
+            [c, u] => {
+                self.h.clear();
+                self.h
+                    .extend(c.h.iter().zip(&u.h).map(|(hc, hu)| hu + w * (hc - hu)));
+            }
+            [c] => self.h.clone_from(&c.h),
+            _ => {}
+        }
+    }
+
+    /// Re-encodes the conditioning and the window's frames from an empty
+    /// cache, on every track.
+    fn encode_window(&mut self) -> Result<(), LmError> {
+        let s = self.session.clone();
+        for t in &mut self.tracks {
+            t.next = None;
+            t.cache = s.new_global_cache();
+            t.h = s.global_step(&mut t.st, &mut t.cache, &t.cond, None)?.0;
+            for i in 0..self.window.len() {
+                let p1 = if i == 0 {
+                    self.before.as_deref()
+                } else {
+                    Some(self.window[i - 1].as_slice())
+                };
+                t.h = s
+                    .global_step(
+                        &mut t.st,
+                        &mut t.cache,
+                        &t.cond,
+                        Some((&self.window[i], p1)),
+                    )?
+                    .0;
+            }
+        }
+        self.mix();
+        Ok(())
+    }
+
+    fn last(&self, k: usize) -> Option<&[u32]> {
+        let n = self.window.len();
+        if k <= n {
+            Some(self.window[n - k].as_slice())
+        } else if k == n + 1 {
+            self.before.as_deref()
+        } else {
+            None
+        }
+    }
+
+    /// The next frame's tokens (the vocabulary's `frame_len`, separator
+    /// last). `forced[s]` fixes slot `s` (a joint prompt).
+    pub fn next_frame(&mut self, forced: &[Option<u32>]) -> Result<Vec<u32>, LmError> {
+        let session = self.session.clone();
+        let c = session.config();
+        let fl = c.slots + 1;
+        if forced.len() != fl {
+            return Err(LmError::invalid(
+                "request",
+                "prompt",
+                format!("{} slots, want {fl}", forced.len()),
+            ));
+        }
+        let p1 = self.last(1).map(|f| f.to_vec());
+        let p2 = self.last(2).map(|f| f.to_vec());
+        let (vel, prev) = local_context(c, p1.as_deref(), p2.as_deref());
+        let mut local = session.new_local_cache();
+        let mut frame = Vec::with_capacity(fl);
+        let mut inp = c.start();
+        for s in 0..c.slots {
+            session.local_step(&mut self.lstate, &mut local, &self.h, inp, vel[s], prev[s])?;
+            let out = &self.lstate.out;
+            let tok = match forced[s] {
+                Some(t) if (t as usize) < c.bins => t,
+                Some(t) => {
+                    return Err(LmError::invalid(
+                        "request",
+                        format!("prompt slot {s}"),
+                        format!("token {t} is not a value token"),
+                    ))
+                }
+                None => draw(
+                    &self.sampling,
+                    &mut self.rng,
+                    c,
+                    out.data(0),
+                    out.data(1),
+                    p1.as_ref().map(|p| p[s]),
+                ),
+            };
+            inp = c.change(p1.as_ref().map(|p| p[s]), tok);
+            frame.push(tok);
+        }
+        // The global window: when full, keep the last half, whose cache
+        // (`next`) was filled as those frames came; then feed the frame.
+        let m = c.max_frames;
+        let keep = (m / 2).max(1);
+        if self.window.len() >= m {
+            let cut = self.window.len() - keep;
+            self.before = Some(self.window[cut - 1].clone());
+            self.window.drain(..cut);
+            let ready = self
+                .tracks
+                .iter()
+                .all(|t| t.next.as_ref().is_some_and(|n| n.len() == 1 + keep));
+            if ready {
+                for t in &mut self.tracks {
+                    t.cache = t.next.take().expect("checked");
+                }
+            } else {
+                self.encode_window()?;
+            }
+        }
+        let i = self.window.len();
+        for t in &mut self.tracks {
+            t.h = session
+                .global_step(
+                    &mut t.st,
+                    &mut t.cache,
+                    &t.cond,
+                    Some((&frame, p1.as_deref())),
+                )?
+                .0;
+            if i >= m - keep {
+                if i == m - keep {
+                    let mut n = session.new_global_cache();
+                    session.global_step(&mut t.st, &mut n, &t.cond, None)?;
+                    t.next = Some(n);
+                }
+                if let Some(n) = t.next.as_mut() {
+                    session.global_step(&mut t.st, n, &t.cond, Some((&frame, p1.as_deref())))?;
+                }
+            }
+        }
+        self.mix();
+        self.window.push(frame.clone());
+        frame.push(session.manifest.vocabulary.sep());
+        self.produced += 1;
+        Ok(frame)
+    }
+}
+
+/// A slot's token: a change from the previous frame's token (or an
+/// escape to the absolute head, with the change window masked out); the
+/// absolute head alone when there is no previous frame.
+fn draw(
+    sampling: &Sampling,
+    rng: &mut StdRng,
+    c: &FrameConfig,
+    rel: &[f32],
+    abs: &[f32],
+    p1: Option<u32>,
+) -> u32 {
+    let Some(p) = p1 else {
+        return sampling.draw(abs, rng) as u32;
+    };
+    // The small changes stay drawable however the tail is cut (keep_near).
+    let (r0, near) = (c.radius as i64, sampling.keep_near as i64);
+    let k = sampling.draw_keeping(rel, rng, |i| {
+        near > 0 && i != c.esc() as usize && (i as i64 - r0).abs() <= near
+    }) as u32;
+    if k != c.esc() {
+        return (p as i64 + k as i64 - c.radius as i64).clamp(0, c.bins as i64 - 1) as u32;
+    }
+    let mut masked = abs.to_vec();
+    let r = c.radius as i64;
+    for (b, x) in masked.iter_mut().enumerate() {
+        if (b as i64 - p as i64).abs() <= r {
+            *x = f32::NEG_INFINITY;
+        }
+    }
+    sampling.draw(&masked, rng) as u32
+}
