@@ -313,6 +313,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         val_fraction: 0.1,
         exemplars: None,
         exemplar_modes: vec![false],
+        candidates: vec![1],
     };
     let mut said = Vec::new();
     let rows = eval_generate(&model, &dir, &o, &mut |l| said.push(l)).unwrap();
@@ -361,6 +362,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         val_fraction: 0.1,
         exemplars: Some(ex),
         exemplar_modes: vec![false, true],
+        candidates: vec![1],
     };
     let rows2 = eval_generate(&model, &dir, &with, &mut |_| {}).unwrap();
     let names: Vec<&str> = rows2.iter().map(|r| r.sampling.as_str()).collect();
@@ -380,6 +382,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         val_fraction: 0.1,
         exemplars: None,
         exemplar_modes: vec![true],
+        candidates: vec![1],
     };
     let e = eval_generate(&model, &dir, &missing, &mut |_| {})
         .err()
@@ -389,13 +392,23 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
     // Bad input: a kind the model is not conditioned on; an empty folder.
     let bad = GenOptions {
         label_kind: "dancer".into(),
-        ..o
+        ..o.clone()
     };
     let e = eval_generate(&model, &dir, &bad, &mut |_| {})
         .err()
         .unwrap()
         .to_string();
     assert!(e.contains("dancer"), "{e}");
+    // Best of N is ranked by the class heads: this model has none.
+    let unranked = GenOptions {
+        candidates: vec![2],
+        ..o.clone()
+    };
+    let e = eval_generate(&model, &dir, &unranked, &mut |_| {})
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("candidates"), "{e}");
     let empty = tempfile::tempdir().unwrap();
     let o2 = GenOptions {
         label_kind: "genre".into(),
@@ -405,6 +418,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         val_fraction: 0.1,
         exemplars: None,
         exemplar_modes: vec![false],
+        candidates: vec![1],
     };
     let e = eval_generate(&model, empty.path(), &o2, &mut |_| {})
         .err()

@@ -551,8 +551,39 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             keep_near: 0,
         }),
         exemplar: String::new(),
+        candidates: 0,
     };
     let one = client.generate(greq.clone()).await.unwrap().into_inner();
+    assert!(one.chosen.is_none(), "one candidate: nothing chosen");
+    // Best of N: three candidates, the one the class heads find likeliest
+    // to be BR comes back, and the answer says which.
+    let best = client
+        .generate(pb::GenerateRequest {
+            candidates: 3,
+            ..greq.clone()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let c = best.chosen.expect("best of 3 says which candidate");
+    assert_eq!(c.candidates, 3);
+    assert!(c.index < 3 && c.label_probability > 0.0 && c.label_probability <= 1.0);
+    assert_eq!(best.frames, one.frames);
+    // A stream cannot choose among whole clips; too many candidates is refused.
+    for (n, stream) in [(2, true), (17, false)] {
+        let r = pb::GenerateRequest {
+            candidates: n,
+            ..greq.clone()
+        };
+        let e = if stream {
+            client.generate_stream(r).await.err()
+        } else {
+            client.generate(r).await.err()
+        }
+        .expect("refused");
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+        assert!(e.message().contains("candidates"), "{}", e.message());
+    }
     // The bundled model has style exemplars: labels and no seed motion start
     // from a real breaking (BR) span, the same one on both transports.
     let ex = one.exemplar.clone().expect("a style exemplar was used");

@@ -56,6 +56,11 @@ impl Choreo for ChoreoGrpc {
                 start_s: e.start_s,
                 seconds: e.seconds,
             }),
+            chosen: r.chosen.map(|c| pb::ChosenCandidate {
+                candidates: c.candidates as u32,
+                index: c.index as u32,
+                label_probability: c.label_probability,
+            }),
         }))
     }
 

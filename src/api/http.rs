@@ -352,6 +352,7 @@ async fn generate(
         seconds: r.seconds,
         real_time_factor: r.real_time_factor,
         exemplar: r.exemplar,
+        chosen: r.chosen,
     }))
 }
 

@@ -36,6 +36,11 @@ pub enum EvalCmd {
         /// both rows side by side.
         #[arg(long, default_value = "both")]
         exemplar: String,
+        /// Best of N: each clip is the one of N samples the model's class
+        /// heads find likeliest to carry its label (what a request's
+        /// `candidates` does); a list runs each row once per entry.
+        #[arg(long, value_delimiter = ',', default_values_t = [1u32])]
+        candidates: Vec<u32>,
         #[arg(long)]
         json: bool,
     },
@@ -170,9 +175,16 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             seconds,
             sampling,
             exemplar,
+            candidates,
             json,
         } => super::eval_generate::run(
-            &model, &data, &labels, per_label, seconds, &sampling, &exemplar, json,
+            &model,
+            &data,
+            &labels,
+            (per_label, seconds),
+            &sampling,
+            (&exemplar, &candidates),
+            json,
         ),
         EvalCmd::Keyframes {
             data,

@@ -45,15 +45,13 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
     Ok(sm)
 }
 
-#[allow(clippy::too_many_arguments)]
 pub fn run(
     model: &Path,
     data: &Path,
     labels: &str,
-    per_label: usize,
-    seconds: f64,
+    (per_label, seconds): (usize, f64),
     samplings: &[String],
-    exemplar: &str,
+    (exemplar, candidates): (&str, &[u32]),
     json: bool,
 ) -> Result<()> {
     if per_label == 0 {
@@ -63,6 +61,12 @@ pub fn run(
         bail!("--seconds: {seconds} (want 0 < s ≤ 120)");
     }
     let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
+    for &n in candidates {
+        let mut l = choreo::motion::Labels::new();
+        // Any value: only whether the model has a head for the kind counts here.
+        l.insert(labels.to_string(), String::new());
+        choreo::lm::best_of::check(&m, &l, n).map_err(|e| anyhow::anyhow!("--candidates: {e}"))?;
+    }
     let samplings = samplings
         .iter()
         .map(|s| parse_sampling(s))
@@ -87,6 +91,7 @@ pub fn run(
             _ => exemplar_modes,
         },
         exemplars,
+        candidates: candidates.to_vec(),
     };
     let rows = eval_generate(&m, data, &o, &mut |line| eprintln!("{line}"))?;
     if json {

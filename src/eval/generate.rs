@@ -41,6 +41,8 @@ use std::path::Path;
 pub struct GenRow {
     pub label_kind: String,
     pub sampling: String,
+    /// Samples each clip was chosen from (best of N; 1 = plain sampling).
+    pub candidates: u32,
     pub labels: usize,
     pub clips: usize,
     pub fid_k: Option<f64>,
@@ -61,6 +63,7 @@ pub struct GenRow {
     pub root_in_place: bool,
 }
 
+#[derive(Clone)]
 pub struct GenOptions {
     pub label_kind: String,
     pub per_label: usize,
@@ -72,6 +75,8 @@ pub struct GenOptions {
     /// sampling runs once per entry.
     pub exemplars: Option<crate::lm::exemplars::Exemplars>,
     pub exemplar_modes: Vec<bool>,
+    /// Best of N ([`crate::lm::best_of`]): each row runs once per entry.
+    pub candidates: Vec<u32>,
 }
 
 /// A sampling setting as a row names it.
@@ -456,12 +461,13 @@ pub fn eval_generate(
             "exemplar: the model folder has no exemplars.json (make one with choreo exemplars)"
         );
     }
-    let runs: Vec<(&Sampling, bool)> = o
+    let runs: Vec<(&Sampling, bool, u32)> = o
         .samplings
         .iter()
         .flat_map(|s| o.exemplar_modes.iter().map(move |&e| (s, e)))
+        .flat_map(|(s, e)| o.candidates.iter().map(move |&n| (s, e, n)))
         .collect();
-    for (sampling, with_exemplar) in runs {
+    for (sampling, with_exemplar, candidates) in runs {
         let t0 = std::time::Instant::now();
         let mut gen: Vec<(String, ClipStats)> = Vec::new();
         for v in &values {
@@ -474,12 +480,18 @@ pub fn eval_generate(
                     (Some(ex), true) => ex.pick(&labels, s.seed).map_or(&[][..], |p| p.1),
                     _ => &[],
                 };
-                let mut g = model.generator(&labels, seed, s)?;
-                let mut toks = Vec::with_capacity(seg * fl);
                 let free = vec![None; fl];
-                for _ in 0..seg {
-                    toks.extend(g.next_frame(&free)?);
-                }
+                let toks = crate::lm::best_of::best_of(model, &labels, candidates, |j| {
+                    let mut sj = s.clone();
+                    sj.seed = crate::lm::best_of::candidate_seed(s.seed, j);
+                    let mut g = model.generator(&labels, seed, sj)?;
+                    let mut toks = Vec::with_capacity(seg * fl);
+                    for _ in 0..seg {
+                        toks.extend(g.next_frame(&free)?);
+                    }
+                    Ok(toks)
+                })?
+                .tokens;
                 gen.push((
                     v.clone(),
                     clip_stats(&vocab, &toks, in_place).map_err(|e| anyhow::anyhow!("{e}"))?,
@@ -499,11 +511,17 @@ pub fn eval_generate(
         let refs: Vec<(String, &ClipStats)> = gen.iter().map(|(v, s)| (v.clone(), s)).collect();
         rows.push(GenRow {
             label_kind: kind.clone(),
-            sampling: if with_exemplar {
-                format!("{} +exemplar", sampling_name(sampling))
-            } else {
-                sampling_name(sampling)
-            },
+            sampling: format!(
+                "{}{}{}",
+                sampling_name(sampling),
+                if with_exemplar { " +exemplar" } else { "" },
+                if candidates > 1 {
+                    format!(" best-of-{candidates}")
+                } else {
+                    String::new()
+                }
+            ),
+            candidates,
             labels: values.len(),
             clips: gen.len(),
             fid_k: fid(&rk, &gk),

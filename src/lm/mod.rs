@@ -17,6 +17,7 @@
 //! slot s, class tokens at frame 0 / slot 44. The functions here are the
 //! only place that says so; the trainer and the server both call them.
 
+pub mod best_of;
 pub mod duet;
 pub mod embed;
 pub mod engine;

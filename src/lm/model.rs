@@ -82,6 +82,15 @@ impl MotionModel {
         }
     }
 
+    /// The label kinds the model's class heads classify.
+    pub fn class_kinds(&self) -> Vec<String> {
+        let classes = match self {
+            MotionModel::Flat(s) => &s.config().classes,
+            MotionModel::Frame(s) => &s.config().classes,
+        };
+        classes.iter().map(|(k, _)| k.clone()).collect()
+    }
+
     /// A generation from these labels, continuing `seed_tokens` (whole
     /// frames).
     pub fn generator(

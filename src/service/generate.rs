@@ -55,6 +55,10 @@ pub struct GenerateParams {
     /// `auto` or empty (a style exemplar of the labels seeds a generation
     /// that has labels and no seed motion), or `none`.
     pub exemplar: String,
+    /// Best of N ([`crate::lm::best_of`]): one-shot generation makes this
+    /// many clips and returns the one the model's class heads find likeliest
+    /// to carry the labels; 0 or 1 = one clip. Streams take 1 only.
+    pub candidates: u32,
 }
 
 /// The style exemplar a generation started from (context only, not in
@@ -75,6 +79,10 @@ pub struct GenerateJob {
     pub frames: usize,
     pub labels: Labels,
     pub exemplar: Option<ExemplarUsed>,
+    /// What best of N needs to start another candidate.
+    seed_tokens: Vec<u32>,
+    sampling: Sampling,
+    candidates: u32,
 }
 
 impl GenerateJob {
@@ -164,7 +172,9 @@ pub async fn generate_job(
         (0, n) => n.min(MAX_GENERATE_FRAMES),
         (n, _) => n,
     };
-    let gen = session.generator(&p.labels, &seed, p.sampling)?;
+    let candidates = p.candidates.max(1);
+    crate::lm::best_of::check(&session, &p.labels, candidates)?;
+    let gen = session.generator(&p.labels, &seed, p.sampling.clone())?;
     Ok(GenerateJob {
         session,
         gen,
@@ -172,6 +182,9 @@ pub async fn generate_job(
         frames,
         labels: p.labels,
         exemplar,
+        seed_tokens: seed,
+        sampling: p.sampling,
+        candidates,
     })
 }
 
@@ -184,6 +197,19 @@ pub struct GenerateReport {
     pub real_time_factor: f64,
     /// The style exemplar it started from, if any.
     pub exemplar: Option<ExemplarUsed>,
+    /// Best of N, when more than one candidate was made.
+    pub chosen: Option<ChosenCandidate>,
+}
+
+/// Which of several candidates a best-of-N generation returned.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ChosenCandidate {
+    pub candidates: usize,
+    /// Its index; it was sampled with seed `lm::best_of::candidate_seed(seed, index)`.
+    pub index: usize,
+    /// The probability the model's class heads give it of the asked-for
+    /// labels (their product, over the kinds the heads classify).
+    pub label_probability: f64,
 }
 
 /// One-shot generation: every frame, decoded into one motion (SMPL-13 at
@@ -197,10 +223,21 @@ pub async fn generate(
     state
         .heavy("generate", move || {
             let t0 = Instant::now();
-            let mut all = Vec::with_capacity(job.frames * job.session.vocabulary().frame_len());
-            for _ in 0..job.frames {
-                all.extend(job.next()?);
-            }
+            let model = job.session.clone();
+            let (labels, n) = (job.labels.clone(), job.candidates);
+            let choice = crate::lm::best_of::best_of(&model, &labels, n, |i| {
+                if i > 0 {
+                    let mut s = job.sampling.clone();
+                    s.seed = crate::lm::best_of::candidate_seed(s.seed, i);
+                    job.gen = model.generator(&labels, &job.seed_tokens, s)?;
+                }
+                let mut all = Vec::with_capacity(job.frames * model.vocabulary().frame_len());
+                for _ in 0..job.frames {
+                    all.extend(job.next()?);
+                }
+                Ok(all)
+            })?;
+            let all = choice.tokens;
             let vocab = job.session.vocabulary();
             let mut m = vocab.decode_motion(&all, "generated")?;
             m.labels = job.labels.clone();
@@ -210,6 +247,11 @@ pub async fn generate(
                 seconds: secs,
                 real_time_factor: job.frames as f64 / vocab.fps / secs.max(1e-9),
                 exemplar: job.exemplar.clone(),
+                chosen: (choice.candidates > 1).then(|| ChosenCandidate {
+                    candidates: choice.candidates,
+                    index: choice.index,
+                    label_probability: choice.log_prob.exp(),
+                }),
             };
             Ok((m, report))
         })
@@ -249,6 +291,15 @@ pub async fn generate_stream(
     p: GenerateParams,
     who: &auth::Principal,
 ) -> Result<FrameStream, ApiError> {
+    if p.candidates > 1 {
+        return Err(ApiError::invalid(
+            "candidates",
+            format!(
+                "{}: a stream sends each frame as it is made, so it cannot choose among whole clips (want 1, or use the one-shot generate)",
+                p.candidates
+            ),
+        ));
+    }
     let mut job = generate_job(state, p, who).await?;
     let exemplar = job.exemplar.clone();
     let permit = state

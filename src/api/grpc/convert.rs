@@ -116,6 +116,7 @@ pub(super) fn generate_params(
             .transpose()?,
         sampling: sampling(r.sampling),
         exemplar: r.exemplar,
+        candidates: r.candidates,
     })
 }
 

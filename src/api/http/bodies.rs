@@ -232,6 +232,9 @@ pub struct GenerateBody {
     /// `auto` (the default) or `none`.
     #[serde(default)]
     pub exemplar: String,
+    /// Best of N (one-shot only; absent = 1).
+    #[serde(default)]
+    pub candidates: u32,
 }
 
 impl GenerateBody {
@@ -248,6 +251,7 @@ impl GenerateBody {
                 .transpose()?,
             sampling: self.sampling.to_sampling(),
             exemplar: self.exemplar,
+            candidates: self.candidates,
         })
     }
 }

@@ -128,6 +128,9 @@ pub struct GenerateResponse {
     /// The style exemplar the generation started from, if any.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub exemplar: Option<service::generate::ExemplarUsed>,
+    /// Best of N: which candidate came back, when more than one was made.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub chosen: Option<service::generate::ChosenCandidate>,
 }
 
 /// One label's probability.
