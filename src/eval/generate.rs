@@ -476,14 +476,15 @@ pub fn eval_generate(
             for i in 0..o.per_label {
                 let mut s = sampling.clone();
                 s.seed = sampling.seed.wrapping_add(i as u64);
-                let seed: &[u32] = match (&o.exemplars, with_exemplar) {
-                    (Some(ex), true) => ex.pick(&labels, s.seed).map_or(&[][..], |p| p.1),
-                    _ => &[],
-                };
                 let free = vec![None; fl];
                 let toks = crate::lm::best_of::best_of(model, &labels, candidates, |j| {
                     let mut sj = s.clone();
                     sj.seed = crate::lm::best_of::candidate_seed(s.seed, j);
+                    // Each candidate picks its exemplar with its own seed, as the API does.
+                    let seed: &[u32] = match (&o.exemplars, with_exemplar) {
+                        (Some(ex), true) => ex.pick(&labels, sj.seed).map_or(&[][..], |p| p.1),
+                        _ => &[],
+                    };
                     let mut g = model.generator(&labels, seed, sj)?;
                     let mut toks = Vec::with_capacity(seg * fl);
                     for _ in 0..seg {

@@ -83,6 +83,8 @@ pub struct GenerateJob {
     seed_tokens: Vec<u32>,
     sampling: Sampling,
     candidates: u32,
+    /// Per candidate, the exemplar it continues (empty: no exemplar).
+    exemplars: Vec<(Vec<u32>, Option<ExemplarUsed>)>,
 }
 
 impl GenerateJob {
@@ -154,17 +156,7 @@ pub async fn generate_job(
             vocab.encode_motion(&state.resolve("seed_motion", input, who).await?)?,
             None,
         ),
-        (None, Some(ex)) if use_exemplar => match ex.pick(&p.labels, p.sampling.seed) {
-            Some((e, tokens)) => (
-                tokens.to_vec(),
-                Some(ExemplarUsed {
-                    source: e.source.clone(),
-                    start_s: e.start_frame as f64 / ex.fps,
-                    seconds: e.frames as f64 / ex.fps,
-                }),
-            ),
-            None => (Vec::new(), None),
-        },
+        (None, Some(ex)) if use_exemplar => pick_exemplar(ex, &p.labels, p.sampling.seed),
         _ => (Vec::new(), None),
     };
     let frames = match (p.frames, forced.len()) {
@@ -174,6 +166,17 @@ pub async fn generate_job(
     };
     let candidates = p.candidates.max(1);
     crate::lm::best_of::check(&session, &p.labels, candidates)?;
+    // Best of N: each candidate continues the exemplar its own seed picks
+    // (candidate 0's is the one above), so the candidates differ more.
+    let exemplars = match (&state.exemplars, &exemplar) {
+        (Some(ex), Some(_)) => (0..candidates as usize)
+            .map(|i| {
+                let s = crate::lm::best_of::candidate_seed(p.sampling.seed, i);
+                pick_exemplar(ex, &p.labels, s)
+            })
+            .collect(),
+        _ => Vec::new(),
+    };
     let gen = session.generator(&p.labels, &seed, p.sampling.clone())?;
     Ok(GenerateJob {
         session,
@@ -185,7 +188,27 @@ pub async fn generate_job(
         seed_tokens: seed,
         sampling: p.sampling,
         candidates,
+        exemplars,
     })
+}
+
+/// The tokens of the style exemplar `seed` picks for `labels`, and what it is.
+fn pick_exemplar(
+    ex: &crate::lm::exemplars::Exemplars,
+    labels: &Labels,
+    seed: u64,
+) -> (Vec<u32>, Option<ExemplarUsed>) {
+    match ex.pick(labels, seed) {
+        Some((e, tokens)) => (
+            tokens.to_vec(),
+            Some(ExemplarUsed {
+                source: e.source.clone(),
+                start_s: e.start_frame as f64 / ex.fps,
+                seconds: e.frames as f64 / ex.fps,
+            }),
+        ),
+        None => (Vec::new(), None),
+    }
 }
 
 /// What a generation measured.
@@ -229,7 +252,8 @@ pub async fn generate(
                 if i > 0 {
                     let mut s = job.sampling.clone();
                     s.seed = crate::lm::best_of::candidate_seed(s.seed, i);
-                    job.gen = model.generator(&labels, &job.seed_tokens, s)?;
+                    let seed = job.exemplars.get(i).map_or(&job.seed_tokens, |e| &e.0);
+                    job.gen = model.generator(&labels, seed, s)?;
                 }
                 let mut all = Vec::with_capacity(job.frames * model.vocabulary().frame_len());
                 for _ in 0..job.frames {
@@ -238,6 +262,9 @@ pub async fn generate(
                 Ok(all)
             })?;
             let all = choice.tokens;
+            if let Some(e) = job.exemplars.get(choice.index) {
+                job.exemplar = e.1.clone();
+            }
             let vocab = job.session.vocabulary();
             let mut m = vocab.decode_motion(&all, "generated")?;
             m.labels = job.labels.clone();
