@@ -820,11 +820,12 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     for want in [
         // The prompt request, the top_p 0 and the keep_near ones; the 400s:
         // the bad exemplar, keep_near 65, the bad label and the over-long
-        // request; over gRPC the prompt request, exemplar none, top_p 0 and
-        // keep_near 1.
+        // request; over gRPC the prompt request, best of 3, exemplar none,
+        // top_p 0 and keep_near 1, and a stream asking for 2 candidates refused.
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 3",
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 4",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 4",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 5",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
     ] {
         assert!(metrics.contains(want), "missing {want} in\n{metrics}");
