@@ -569,10 +569,12 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     assert_eq!(c.candidates, 3);
     assert!(c.index < 3 && c.label_probability > 0.0 && c.label_probability <= 1.0);
     assert_eq!(best.frames, one.frames);
-    // A stream cannot choose among whole clips; too many candidates is refused.
-    for (n, stream) in [(2, true), (17, false)] {
+    // A stream cannot choose among whole clips; too many candidates, or
+    // more frames of work than one request may ask for, is refused.
+    for (n, frames, stream) in [(2, 24, true), (17, 24, false), (3, 1000, false)] {
         let r = pb::GenerateRequest {
             candidates: n,
+            frames,
             ..greq.clone()
         };
         let e = if stream {

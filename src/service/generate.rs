@@ -166,6 +166,17 @@ pub async fn generate_job(
     };
     let candidates = p.candidates.max(1);
     crate::lm::best_of::check(&session, &p.labels, candidates)?;
+    // Best of N does N generations: the work a request may ask for is
+    // bounded by frames × candidates, not frames alone.
+    if candidates as usize * frames > MAX_GENERATE_FRAMES {
+        return Err(ApiError::invalid(
+            "candidates",
+            format!(
+                "{candidates} candidates × {frames} frames = {} frames of work; at most {MAX_GENERATE_FRAMES} per request",
+                candidates as usize * frames
+            ),
+        ));
+    }
     // Best of N: each candidate continues the exemplar its own seed picks
     // (candidate 0's is the one above), so the candidates differ more.
     let exemplars = match (&state.exemplars, &exemplar) {
