@@ -61,12 +61,6 @@ pub fn run(
         bail!("--seconds: {seconds} (want 0 < s ≤ 120)");
     }
     let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
-    for &n in candidates {
-        let mut l = choreo::motion::Labels::new();
-        // Any value: only whether the model has a head for the kind counts here.
-        l.insert(labels.to_string(), String::new());
-        choreo::lm::best_of::check(&m, &l, n).map_err(|e| anyhow::anyhow!("--candidates: {e}"))?;
-    }
     let samplings = samplings
         .iter()
         .map(|s| parse_sampling(s))

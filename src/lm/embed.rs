@@ -12,7 +12,7 @@
 //! The pooled states alone ([`FrameSession::pooled_states`], the first
 //! version of `lm`) were measured too and lost to the spectral embeddings:
 //! a model trained to predict the next frame encodes what the body does
-//! now, which many performers share (README, "The frame model's states as
+//! now, which many performers share (README, "The frame model's reading as
 //! a search embedding").
 //!
 //! It reads the same window as the spectral embeddings: 128 frames of the
@@ -30,14 +30,14 @@ use crate::features::{CHANNELS, FEATURE_FPS, WINDOW};
 use crate::motion::{Labels, Motion, Skeleton};
 use std::sync::Arc;
 
-/// Per kind, the square roots of the softmax of its logits, concatenated.
+/// Per kind, the square roots of the softmax of its logits (the softmax
+/// `classify` answers with), concatenated.
 fn hellinger(logits: &[Vec<f32>]) -> Vec<f32> {
     let mut out = Vec::with_capacity(logits.iter().map(Vec::len).sum());
     for l in logits {
-        let m = l.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-        let e: Vec<f64> = l.iter().map(|x| ((x - m) as f64).exp()).collect();
-        let z: f64 = e.iter().sum();
-        out.extend(e.iter().map(|x| (x / z).sqrt() as f32));
+        let mut p = vec![0f64; l.len()];
+        super::generate::add_softmax(&mut p, l, 1.0);
+        out.extend(p.iter().map(|x| x.sqrt() as f32));
     }
     out
 }

@@ -79,12 +79,10 @@ pub struct GenerateJob {
     pub frames: usize,
     pub labels: Labels,
     pub exemplar: Option<ExemplarUsed>,
-    /// What best of N needs to start another candidate.
-    seed_tokens: Vec<u32>,
+    /// Best of N: the sampling, and what candidates 1.. continue (their
+    /// context tokens and exemplar; candidate 0 is `gen` / `exemplar`).
     sampling: Sampling,
-    candidates: u32,
-    /// Per candidate, the exemplar it continues (empty: no exemplar).
-    exemplars: Vec<(Vec<u32>, Option<ExemplarUsed>)>,
+    others: Vec<(Vec<u32>, Option<ExemplarUsed>)>,
 }
 
 impl GenerateJob {
@@ -178,16 +176,18 @@ pub async fn generate_job(
         ));
     }
     // Best of N: each candidate continues the exemplar its own seed picks
-    // (candidate 0's is the one above), so the candidates differ more.
-    let exemplars = match (&state.exemplars, &exemplar) {
-        (Some(ex), Some(_)) => (0..candidates as usize)
-            .map(|i| {
-                let s = crate::lm::best_of::candidate_seed(p.sampling.seed, i);
-                pick_exemplar(ex, &p.labels, s)
-            })
-            .collect(),
-        _ => Vec::new(),
-    };
+    // (candidate 0's is the one above), so the candidates differ more; a
+    // seed motion is continued by all of them.
+    let others = (1..candidates as usize)
+        .map(|i| match (&state.exemplars, &exemplar) {
+            (Some(ex), Some(_)) => pick_exemplar(
+                ex,
+                &p.labels,
+                crate::lm::best_of::candidate_seed(p.sampling.seed, i),
+            ),
+            _ => (seed.clone(), None),
+        })
+        .collect();
     let gen = session.generator(&p.labels, &seed, p.sampling.clone())?;
     Ok(GenerateJob {
         session,
@@ -196,10 +196,8 @@ pub async fn generate_job(
         frames,
         labels: p.labels,
         exemplar,
-        seed_tokens: seed,
         sampling: p.sampling,
-        candidates,
-        exemplars,
+        others,
     })
 }
 
@@ -258,13 +256,12 @@ pub async fn generate(
         .heavy("generate", move || {
             let t0 = Instant::now();
             let model = job.session.clone();
-            let (labels, n) = (job.labels.clone(), job.candidates);
+            let (labels, n) = (job.labels.clone(), 1 + job.others.len() as u32);
             let choice = crate::lm::best_of::best_of(&model, &labels, n, |i| {
                 if i > 0 {
                     let mut s = job.sampling.clone();
                     s.seed = crate::lm::best_of::candidate_seed(s.seed, i);
-                    let seed = job.exemplars.get(i).map_or(&job.seed_tokens, |e| &e.0);
-                    job.gen = model.generator(&labels, seed, s)?;
+                    job.gen = model.generator(&labels, &job.others[i - 1].0, s)?;
                 }
                 let mut all = Vec::with_capacity(job.frames * model.vocabulary().frame_len());
                 for _ in 0..job.frames {
@@ -273,8 +270,8 @@ pub async fn generate(
                 Ok(all)
             })?;
             let all = choice.tokens;
-            if let Some(e) = job.exemplars.get(choice.index) {
-                job.exemplar = e.1.clone();
+            if choice.index > 0 {
+                job.exemplar = job.others[choice.index - 1].1.clone();
             }
             let vocab = job.session.vocabulary();
             let mut m = vocab.decode_motion(&all, "generated")?;
