@@ -232,8 +232,13 @@ impl Exemplars {
             let n = tokens.len() / fl;
             let st = (n - len) / 3;
             let span = tokens[st * fl..(st + len) * fl].to_vec();
+            // The file name only: the path it was read from is this
+            // machine's, and answers repeat it.
+            let source = std::path::Path::new(name)
+                .file_name()
+                .map_or_else(|| name.clone(), |f| f.to_string_lossy().into_owned());
             items.push(Exemplar {
-                source: name.clone(),
+                source,
                 labels: labels.clone(),
                 start_frame: st,
                 frames: len,
