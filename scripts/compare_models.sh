@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# The flat GPT (the thesis's, 43 tokens a frame) against the frame model
+# (one global step a frame), trained on the same data with the same CPU
+# time, then measured the same way (README, "Flat against frame, same CPU
+# time"). Both train at once, one thread each, under one time limit, so
+# each gets the same CPU seconds; the step counts size each cosine schedule
+# to end near that limit (measured here: ~3.0 s a flat step of 16 × 8
+# frames, ~6.9 s a frame-model step of 6 × 200 frames, one thread each).
+#   scripts/compare_models.sh RUN_DIR [SECONDS] [FLAT_STEPS] [FRAME_STEPS]
+set -euo pipefail
+run=${1:?run folder}
+secs=${2:-2700}
+flat_steps=${3:-950}
+frame_steps=${4:-410}
+data=${CHOREO_DATA:-../shared/data}
+T=target/release/choreo-train
+C=target/release/choreo
+cargo build --release --all-features --bins
+mkdir -p "$run"
+# 1. Training: the same corpora (every one under --data), split and mirrors.
+RAYON_NUM_THREADS=1 $T train --out "$run/flat" --d-model 128 --layers 3 --heads 4 --frames 8 \
+    --steps "$flat_steps" --eval-every 100 --max-seconds "$secs" --export > "$run/flat.log" 2>&1 &
+RAYON_NUM_THREADS=1 $T frame --out "$run/frame" --frames 200 --batch 6 \
+    --steps "$frame_steps" --eval-every 100 --max-seconds "$secs" > "$run/frame.table.json" 2> "$run/frame.log" &
+wait
+# 2. Held-out bits/frame on the trainer's split, per corpus, beside the
+#    baselines (the frame model's table has them; the flat model's is one
+#    run per corpus, so the same held-out sequences).
+$T eval-frame --checkpoint "$run/frame" --export "$run/frame/export" > "$run/frame.bits.json"
+for c in aistpp-vrm bandai aistpp cmu; do
+    $T eval --checkpoint "$run/flat" --corpus "$c" > "$run/flat.bits.$c.json"
+done
+$T eval --checkpoint "$run/flat" > "$run/flat.bits.all.json"
+# 3. Style exemplars for both, from the training sequences only (the flat
+#    model's context is 8 frames, so its exemplar is that long).
+ex_data=(--data "$data/bandai" --data "$data/aistpp-vrm" --data "$data/aistpp" --data "$data/cmu")
+$C exemplars --model "$run/frame/export" "${ex_data[@]}"
+$C exemplars --model "$run/flat/export" --seconds 0.4 "${ex_data[@]}"
+# 4. Streaming speed, one sitting.
+$C bench model --model "$run/frame/export" --frames 600 > "$run/frame.bench.json"
+$C bench model --model "$run/flat/export" --frames 200 > "$run/flat.bench.json"
+# 5. Generation, both models side by side (single-threaded each, so two at once).
+for m in flat frame; do
+    (
+        $C eval generate --model "$run/$m/export" --data "$data/bandai" --labels style --per-label 2 \
+            --sampling 1:0:0.95:1:1,1:0:1 --exemplar both --json > "$run/$m.gen.bandai.json"
+        $C eval generate --model "$run/$m/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label 3 \
+            --sampling 1:0:0.95:1:1 --exemplar both --json > "$run/$m.gen.vrm.json"
+    ) &
+done
+wait
+echo "tables in $run"
