@@ -324,6 +324,10 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
             r.fid_k_real.is_some_and(|x| x.is_finite() && x >= 0.0),
             "{r:?}"
         );
+        // The bootstrap range of FID over the generated clips is ordered.
+        if let Some([lo, hi]) = r.fid_k_range {
+            assert!(lo.is_finite() && lo >= 0.0 && lo <= hi, "{r:?}");
+        }
         assert!((0.0..=1.0).contains(&r.frozen) && (0.0..=1.0).contains(&r.cond_acc));
         assert!(r.accel_ratio.is_finite() && r.jerk_ratio.is_finite());
         // The judge, fitted on real training windows, names real held-out

@@ -96,6 +96,7 @@ pub fn run(
         return Ok(());
     }
     let f = |x: Option<f64>| x.map_or("-".into(), |v| format!("{v:.1}"));
+    let range = |x: Option<[f64; 2]>| x.map_or(String::new(), |[a, b]| format!(" [{a:.1}–{b:.1}]"));
     println!(
         "{} model, {} clips of {seconds} s per {labels}, held-out clips of {}",
         m.kind(),
@@ -103,16 +104,18 @@ pub fn run(
         PathBuf::from(data).display()
     );
     println!(
-        "| sampling | FID_k (real) | FID_g (real) | accel × | jerk × | skate × | frozen | diversity (real) | cond acc (real) | s/clip |"
+        "| sampling | FID_k [5–95 % over resampled clips] (real) | FID_g [5–95 %] (real) | accel × | jerk × | skate × | frozen | diversity (real) | cond acc (real) | s/clip |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|");
     for r in &rows {
         println!(
-            "| {} | {} ({}) | {} ({}) | {:.2} | {:.2} | {:.2} | {:.0} % | {:.2} ({:.2}) | {:.0} % ({:.0} %) | {:.2} |",
+            "| {} | {}{} ({}) | {}{} ({}) | {:.2} | {:.2} | {:.2} | {:.0} % | {:.2} ({:.2}) | {:.0} % ({:.0} %) | {:.2} |",
             r.sampling,
             f(r.fid_k),
+            range(r.fid_k_range),
             f(r.fid_k_real),
             f(r.fid_g),
+            range(r.fid_g_range),
             f(r.fid_g_real),
             r.accel_ratio,
             r.jerk_ratio,
