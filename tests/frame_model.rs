@@ -379,58 +379,45 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
             "t=1 top_k=0 top_p=0.95 keep_near=1 +exemplar"
         ]
     );
-    // Asking for exemplars the model does not have is an error.
-    let missing = GenOptions {
-        label_kind: "genre".into(),
-        per_label: 1,
-        seconds: 2.0,
-        samplings: vec![Sampling::recommended(1)],
-        val_fraction: 0.1,
-        exemplars: None,
-        exemplar_modes: vec![true],
-        candidates: vec![1],
-    };
-    let e = eval_generate(&model, &dir, &missing, &mut |_| {})
-        .err()
-        .unwrap()
-        .to_string();
-    assert!(e.contains("exemplars.json"), "{e}");
-    // Bad input: a kind the model is not conditioned on; an empty folder.
-    let bad = GenOptions {
-        label_kind: "dancer".into(),
-        ..o.clone()
-    };
-    let e = eval_generate(&model, &dir, &bad, &mut |_| {})
-        .err()
-        .unwrap()
-        .to_string();
-    assert!(e.contains("dancer"), "{e}");
-    // Best of N is ranked by the class heads: this model has none.
-    let unranked = GenOptions {
-        candidates: vec![2],
-        ..o.clone()
-    };
-    let e = eval_generate(&model, &dir, &unranked, &mut |_| {})
-        .err()
-        .unwrap()
-        .to_string();
-    assert!(e.contains("candidates"), "{e}");
+    // Refused, each naming what is wrong: exemplars the model does not
+    // have; a kind it is not conditioned on; best of N with no class heads
+    // to rank by; a folder with no motion.
     let empty = tempfile::tempdir().unwrap();
-    let o2 = GenOptions {
-        label_kind: "genre".into(),
-        per_label: 1,
-        seconds: 2.0,
-        samplings: vec![Sampling::default()],
-        val_fraction: 0.1,
-        exemplars: None,
-        exemplar_modes: vec![false],
-        candidates: vec![1],
-    };
-    let e = eval_generate(&model, empty.path(), &o2, &mut |_| {})
-        .err()
-        .unwrap()
-        .to_string();
-    assert!(e.contains("no readable motion"), "{e}");
+    let refusals = [
+        (
+            GenOptions {
+                samplings: vec![Sampling::recommended(1)],
+                exemplar_modes: vec![true],
+                ..o.clone()
+            },
+            dir.as_path(),
+            "exemplars.json",
+        ),
+        (
+            GenOptions {
+                label_kind: "dancer".into(),
+                ..o.clone()
+            },
+            dir.as_path(),
+            "dancer",
+        ),
+        (
+            GenOptions {
+                candidates: vec![2],
+                ..o.clone()
+            },
+            dir.as_path(),
+            "candidates",
+        ),
+        (o.clone(), empty.path(), "no readable motion"),
+    ];
+    for (opts, folder, want) in refusals {
+        let e = eval_generate(&model, folder, &opts, &mut |_| {})
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains(want), "{want}: {e}");
+    }
 }
 
 /// Closed-form class heads: fitted on the exported model's mean states of

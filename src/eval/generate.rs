@@ -23,7 +23,7 @@
 //! quantisation is the same on both sides.
 
 use crate::features::lda::{window_features, Lda};
-use crate::keyframes::metrics::{fid, geometric_features, kinetic_features};
+use crate::keyframes::metrics::{fid, fid_range, geometric_features, kinetic_features};
 use crate::lm::manifest::sha256_hex;
 use crate::lm::model::MotionModel;
 use crate::lm::Sampling;
@@ -343,34 +343,6 @@ pub fn read_split(
     ))
 }
 
-/// Bootstrap resamples behind `fid_*_range`.
-const FID_BOOTSTRAP: usize = 200;
-
-/// The 5th and 95th percentiles of the FID between `real` and resamples
-/// (with replacement, the same count) of `gen`; a fixed seed, so a rerun
-/// on the same clips prints the same range.
-fn fid_range(real: &[Vec<f64>], gen: &[Vec<f64>]) -> Option<[f64; 2]> {
-    use rand::{Rng, SeedableRng};
-    if gen.len() < 2 {
-        return None;
-    }
-    let mut rng = rand::rngs::StdRng::seed_from_u64(0x0F1D);
-    let mut v: Vec<f64> = (0..FID_BOOTSTRAP)
-        .filter_map(|_| {
-            let pick: Vec<Vec<f64>> = (0..gen.len())
-                .map(|_| gen[rng.gen_range(0..gen.len())].clone())
-                .collect();
-            fid(real, &pick).filter(|x| x.is_finite())
-        })
-        .collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
-    Some([at(0.05), at(0.95)])
-}
-
 fn mean(x: impl Iterator<Item = f64>) -> f64 {
     let (s, n) = x.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
     s / n.max(1) as f64
@@ -577,44 +549,4 @@ pub fn eval_generate(
         });
     }
     Ok(rows)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::fid_range;
-
-    /// Rows of `d` values drawn around `shift` (a fixed pseudo-random walk,
-    /// no RNG crate needed for a test this small).
-    fn rows(n: usize, d: usize, shift: f64, salt: u64) -> Vec<Vec<f64>> {
-        let mut x = 0x9E37_79B9_7F4A_7C15u64 ^ salt;
-        (0..n)
-            .map(|_| {
-                (0..d)
-                    .map(|_| {
-                        x ^= x << 13;
-                        x ^= x >> 7;
-                        x ^= x << 17;
-                        shift + (x % 10_000) as f64 / 10_000.0 - 0.5
-                    })
-                    .collect()
-            })
-            .collect()
-    }
-
-    #[test]
-    fn fid_range_brackets_the_figure_and_narrows_with_more_clips() {
-        let real = rows(60, 4, 0.0, 1);
-        let far = rows(40, 4, 2.0, 2);
-        let exact = crate::keyframes::metrics::fid(&real, &far).unwrap();
-        let [lo, hi] = fid_range(&real, &far).unwrap();
-        assert!(lo <= exact && exact <= hi, "{lo} {exact} {hi}");
-        // The same distribution, ten times the clips: a narrower range.
-        let many = rows(400, 4, 2.0, 3);
-        let [lo2, hi2] = fid_range(&real, &many).unwrap();
-        assert!(hi2 - lo2 < hi - lo, "{lo2}–{hi2} against {lo}–{hi}");
-        // Deterministic: the same clips give the same range.
-        assert_eq!(fid_range(&real, &far), Some([lo, hi]));
-        // One clip has no covariance to resample.
-        assert_eq!(fid_range(&real, &far[..1]), None);
-    }
 }

@@ -424,6 +424,35 @@ pub fn beat_alignment(music: &[usize], motion: &[usize], sigma: f64) -> Option<(
     Some((score(music, motion), score(motion, music)))
 }
 
+/// Bootstrap resamples behind [`fid_range`].
+pub const FID_BOOTSTRAP: usize = 200;
+
+/// The 5th and 95th percentiles of [`fid`] between `real` and resamples
+/// (with replacement, the same count) of `gen`: how far the figure moves
+/// with which generated samples happened to be drawn; a fixed seed, so a rerun
+/// on the same clips prints the same range.
+pub fn fid_range(real: &[Vec<f64>], gen: &[Vec<f64>]) -> Option<[f64; 2]> {
+    use rand::{Rng, SeedableRng};
+    if gen.len() < 2 {
+        return None;
+    }
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0x0F1D);
+    let mut v: Vec<f64> = (0..FID_BOOTSTRAP)
+        .filter_map(|_| {
+            let pick: Vec<Vec<f64>> = (0..gen.len())
+                .map(|_| gen[rng.gen_range(0..gen.len())].clone())
+                .collect();
+            fid(real, &pick).filter(|x| x.is_finite())
+        })
+        .collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+    Some([at(0.05), at(0.95)])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -490,5 +519,29 @@ mod tests {
         // of up; the knees are straight (180°, not within 0–110°).
         assert_eq!(g[28], 0.0);
         assert_eq!((g[19], g[20]), (0.0, 0.0));
+    }
+
+    #[test]
+    fn fid_range_brackets_the_figure_and_narrows_with_more_samples() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let mut rows = |n: usize, shift: f64| -> Vec<Vec<f64>> {
+            (0..n)
+                .map(|_| (0..4).map(|_| shift + rng.gen_range(-0.5..0.5)).collect())
+                .collect()
+        };
+        let real = rows(60, 0.0);
+        let far = rows(40, 2.0);
+        let many = rows(400, 2.0);
+        let exact = fid(&real, &far).unwrap();
+        let [lo, hi] = fid_range(&real, &far).unwrap();
+        assert!(lo <= exact && exact <= hi, "{lo} {exact} {hi}");
+        // The same distribution, ten times the samples: a narrower range.
+        let [lo2, hi2] = fid_range(&real, &many).unwrap();
+        assert!(hi2 - lo2 < hi - lo, "{lo2}–{hi2} against {lo}–{hi}");
+        // Deterministic: the same samples give the same range.
+        assert_eq!(fid_range(&real, &far), Some([lo, hi]));
+        // One sample has no covariance to resample.
+        assert_eq!(fid_range(&real, &far[..1]), None);
     }
 }
