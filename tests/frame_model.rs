@@ -161,6 +161,30 @@ fn exported_graphs_match_the_trainer() {
     eprintln!("parity {worst:.2e} (logits up to {scale:.1})");
     assert!(scale > 0.1);
     assert!(worst < 1e-4, "{worst}");
+
+    // `--init-from` an export: its vocabulary, and every trainer
+    // parameter read back from the two graphs bit for bit, except the
+    // class heads (fitted heads are not the trainer's).
+    let (v2, t, _) = fr::init_source(dir.path(), &Device::Cpu).unwrap();
+    assert_eq!(v2, v);
+    let mut checked = 0;
+    for (name, var) in net.params.0.iter() {
+        if name.starts_with("cls.") {
+            assert!(!t.contains_key(name), "{name} taken from the export");
+            continue;
+        }
+        let got = t.get(name).unwrap_or_else(|| panic!("{name} missing"));
+        let (a, b) = (
+            var.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+            got.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+        );
+        assert_eq!(a, b, "{name}");
+        checked += 1;
+    }
+    assert!(checked > 10, "{checked} parameters compared");
+    let fresh = FrameNet::new(net.cfg.clone(), &Device::Cpu).unwrap();
+    let missing = fresh.params.load_matching(&t, "export").unwrap();
+    assert!(missing.iter().all(|n| n.starts_with("cls.")), "{missing:?}");
 }
 
 #[test]

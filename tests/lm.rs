@@ -362,7 +362,22 @@ fn inbetweener_export_parity_rebuild_and_bad_manifests() {
     let fixed: Vec<ib::Example> = (0..8)
         .map(|_| ib::example(&cfg, &clips[0], 12, &mut rng).unwrap())
         .collect();
-    let before = ib::loss(&net, &fixed, &dev)
+    // The FK weights: mean 1, the pelvis above the spine above an elbow,
+    // leaves (feet, head, hands) at the floor, the root translation high.
+    let w = ib::pose_weights(ib::LossWeights::Fk);
+    let mean = w.iter().sum::<f32>() / w.len() as f32;
+    assert!((mean - 1.0).abs() < 1e-4, "mean weight {mean}");
+    let joint = |j: usize| w[j * 6];
+    assert!(joint(0) > joint(3) && joint(3) > joint(18), "{w:?}");
+    let floor = joint(10);
+    assert!([11, 15, 22, 23].iter().all(|&j| joint(j) == floor), "{w:?}");
+    assert!(floor > 0.0 && floor < joint(18), "{w:?}");
+    assert!(w[24 * 6] > joint(0), "{w:?}");
+    assert_eq!(
+        ib::pose_weights(ib::LossWeights::Uniform),
+        vec![1.0; w.len()]
+    );
+    let before = ib::loss(&net, &fixed, &w, &dev)
         .unwrap()
         .to_scalar::<f32>()
         .unwrap();
@@ -379,9 +394,10 @@ fn inbetweener_export_parity_rebuild_and_bad_manifests() {
         seed: 0,
         max_seconds: None,
         corpus_share: None,
+        loss_weights: ib::LossWeights::Fk,
     };
     ib::train(&net, &clips, &settings, &mut rng, &dev, &mut |_, _, _| {}).unwrap();
-    let after = ib::loss(&net, &fixed, &dev)
+    let after = ib::loss(&net, &fixed, &w, &dev)
         .unwrap()
         .to_scalar::<f32>()
         .unwrap();

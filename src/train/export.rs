@@ -54,6 +54,40 @@ pub(crate) fn attr_ints(name: &str, ints: &[i64]) -> AttributeProto {
 }
 
 /// A tensor's type with named symbolic dimensions (`"B"`) or fixed ones.
+/// The float initialisers of an ONNX file as tensors, by name (scalars
+/// and shape constants included; callers pick their parameters by name).
+pub fn float_initializers(
+    path: &Path,
+    dev: &candle_core::Device,
+) -> anyhow::Result<BTreeMap<String, candle_core::Tensor>> {
+    let file = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|e| anyhow::anyhow!("{file}: {e}"))?;
+    let proto = ModelProto::decode(bytes.as_slice())
+        .map_err(|e| anyhow::anyhow!("{file}: not an ONNX model: {e}"))?;
+    let graph = proto
+        .graph
+        .ok_or_else(|| anyhow::anyhow!("{file}: no graph"))?;
+    let mut t = BTreeMap::new();
+    for init in &graph.initializer {
+        let dims: Vec<usize> = init.dims.iter().map(|&d| d as usize).collect();
+        if init.data_type != DataType::Float as i32
+            || init.raw_data.len() != 4 * dims.iter().product::<usize>()
+        {
+            continue;
+        }
+        let data: Vec<f32> = init
+            .raw_data
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        t.insert(
+            init.name.clone(),
+            candle_core::Tensor::from_vec(data, dims, dev)?,
+        );
+    }
+    Ok(t)
+}
+
 pub fn value_info(name: &str, elem: DataType, dims: &[&str]) -> ValueInfoProto {
     let dim = dims
         .iter()

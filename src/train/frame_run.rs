@@ -242,6 +242,39 @@ pub fn load(dir: &std::path::Path, dev: &Device) -> Result<(FrameState, FrameNet
     Ok((st, net, opt))
 }
 
+/// The starting point of `--init-from`: a frame-model checkpoint folder
+/// (its state and weights) or an exported model folder (its manifest's
+/// vocabulary, and the weights read back from `global.onnx` and
+/// `local.onnx`). An export's class heads (`cls.*`) are left out: they
+/// were fitted in closed form on other inputs (`fit-heads`) and mean
+/// nothing to the trainer's heads, which start fresh. Returns the
+/// vocabulary, the tensors by name and the file they came from.
+pub fn init_source(
+    from: &std::path::Path,
+    dev: &Device,
+) -> Result<(Vocabulary, BTreeMap<String, candle_core::Tensor>, String)> {
+    use crate::lm::frame::{FrameManifest, FRAME_KIND};
+    if from.join(crate::lm::manifest::MANIFEST_FILE).is_file() {
+        let (file, name, m): (_, _, FrameManifest) = crate::lm::manifest::read_manifest(from)?;
+        if m.kind != FRAME_KIND {
+            bail!("{name}: field `kind`: {:?}, want {FRAME_KIND:?}", m.kind);
+        }
+        let dir = file.parent().unwrap_or(std::path::Path::new("."));
+        let mut t = BTreeMap::new();
+        for (onnx, sha) in [
+            (&m.global_onnx, &m.global_sha256),
+            (&m.local_onnx, &m.local_sha256),
+        ] {
+            let (path, _) = crate::lm::manifest::read_onnx_checked(&file, &name, onnx, sha)?;
+            let got = super::export::float_initializers(&path, dev)?;
+            t.extend(got.into_iter().filter(|(k, _)| !k.starts_with("cls.")));
+        }
+        return Ok((m.vocabulary, t, dir.display().to_string()));
+    }
+    let (st, t, file): (FrameState, _, _) = super::load_parts(from, dev)?;
+    Ok((st.vocabulary, t, file))
+}
+
 /// A frame-model run (the trainer's flags): where, the architecture (its
 /// `bins`, `slots` and `vocab_size` are taken from the vocabulary) and the
 /// schedule.
@@ -282,7 +315,7 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         let net = FrameNet::new(cfg.clone(), &dev)?;
         if let Some(from) = &run.init_from {
-            let (_, t, file): (FrameState, _, _) = super::load_parts(from, &dev)?;
+            let (_, t, file) = init_source(from, &dev)?;
             let fresh = net.params.load_matching(&t, &file)?;
             tracing::info!(
                 "started from {}; fresh parameters: {}",

@@ -88,30 +88,9 @@ impl InbetweenNet {
     /// Loads the weights of an exported in-betweener (its ONNX
     /// initialisers, by name); every parameter must be there with its shape.
     pub fn load_from_export(&self, model: &Inbetweener, dev: &Device) -> Result<()> {
+        // Params::load_tensors checks names and shapes.
+        let t = super::export::float_initializers(&model.onnx_path, dev)?;
         let file = model.onnx_path.display().to_string();
-        let bytes = std::fs::read(&model.onnx_path)?;
-        let proto = tract_onnx::pb::ModelProto::decode(bytes.as_slice())
-            .map_err(|e| anyhow::anyhow!("{file}: not an ONNX model: {e}"))?;
-        let graph = proto
-            .graph
-            .ok_or_else(|| anyhow::anyhow!("{file}: no graph"))?;
-        // Float initialisers as tensors; Params::load_tensors checks names
-        // and shapes.
-        let mut t = BTreeMap::new();
-        for init in &graph.initializer {
-            let dims: Vec<usize> = init.dims.iter().map(|&d| d as usize).collect();
-            if init.data_type != DataType::Float as i32
-                || init.raw_data.len() != 4 * dims.iter().product::<usize>()
-            {
-                continue;
-            }
-            let data: Vec<f32> = init
-                .raw_data
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect();
-            t.insert(init.name.clone(), Tensor::from_vec(data, dims, dev)?);
-        }
         self.params.load_tensors(&t, &file)
     }
 }
@@ -310,8 +289,68 @@ pub fn example(
     Ok(Example { x, target, mask })
 }
 
-/// Mean squared residual error over the in-between frames of a batch.
-pub fn loss(net: &InbetweenNet, exs: &[Example], dev: &Device) -> candle_core::Result<Tensor> {
+/// Per-number weights of the pose for the loss, mean 1.
+///
+/// `Uniform` weighs every 6D number and the root translation alike.
+/// `Fk` follows the evaluation's measure, the mean squared error of the
+/// FK joint positions: to first order a small rotation error at joint j
+/// moves every joint below it by its angle times that joint's rest
+/// distance from j, so j's six numbers weigh the mean over the 24 joints
+/// of the squared rest distances of j's descendants; the root translation
+/// moves all 24 joints (weight 1 m² per number before the mean is made 1).
+/// Leaf rotations (feet, head, hands) move no SMPL-24 joint and keep a
+/// floor of 2 % of the mean, so they are still learned.
+pub fn pose_weights(kind: LossWeights) -> Vec<f32> {
+    if kind == LossWeights::Uniform {
+        return vec![1.0; POSE_DIM];
+    }
+    let sk = crate::motion::Skeleton::smpl24();
+    let rest = Motion::rest_positions(&sk);
+    let n = sk.len();
+    let mut w = vec![0f64; POSE_DIM];
+    for j in 0..n {
+        let mut acc = 0.0;
+        for k in 0..n {
+            let mut a = sk.parents[k];
+            while let Some(p) = a {
+                if p == j {
+                    let d: f64 = (0..3).map(|c| (rest[k][c] - rest[j][c]).powi(2)).sum();
+                    acc += d;
+                    break;
+                }
+                a = sk.parents[p];
+            }
+        }
+        for v in &mut w[j * 6..j * 6 + 6] {
+            *v = acc / n as f64;
+        }
+    }
+    for v in &mut w[n * 6..] {
+        *v = 1.0;
+    }
+    let mean = w.iter().sum::<f64>() / POSE_DIM as f64;
+    let floor = 0.02 * mean;
+    let w: Vec<f64> = w.iter().map(|&v| v.max(floor)).collect();
+    let mean = w.iter().sum::<f64>() / POSE_DIM as f64;
+    w.iter().map(|&v| (v / mean) as f32).collect()
+}
+
+/// How the loss weighs the pose's numbers (see [`pose_weights`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum LossWeights {
+    Uniform,
+    Fk,
+}
+
+/// Weighted mean squared residual error over the in-between frames of a
+/// batch (`weights`: [`POSE_DIM`] numbers, see [`pose_weights`]).
+pub fn loss(
+    net: &InbetweenNet,
+    exs: &[Example],
+    weights: &[f32],
+    dev: &Device,
+) -> candle_core::Result<Tensor> {
     let cfg = &net.cfg;
     let b = exs.len();
     let cat = |f: &dyn Fn(&Example) -> &Vec<f32>| -> Vec<f32> {
@@ -320,8 +359,12 @@ pub fn loss(net: &InbetweenNet, exs: &[Example], dev: &Device) -> candle_core::R
     let x = Tensor::from_vec(cat(&|e| &e.x), (b, cfg.window, cfg.in_dim()), dev)?;
     let y = Tensor::from_vec(cat(&|e| &e.target), (b, cfg.window, POSE_DIM), dev)?;
     let m = Tensor::from_vec(cat(&|e| &e.mask), (b, cfg.window, 1), dev)?;
+    let w = Tensor::from_slice(weights, (1, 1, POSE_DIM), dev)?;
     let count: f32 = exs.iter().map(|e| e.mask.iter().sum::<f32>()).sum();
-    let err = (net.forward(&x)? - y)?.sqr()?.broadcast_mul(&m)?;
+    let err = (net.forward(&x)? - y)?
+        .sqr()?
+        .broadcast_mul(&m)?
+        .broadcast_mul(&w)?;
     err.sum_all()? / (count.max(1.0) as f64 * POSE_DIM as f64)
 }
 
@@ -340,6 +383,8 @@ pub struct Settings {
     /// Draw this fraction of each batch from one corpus (e.g. 0.25 of
     /// `aistpp`), the rest by length from all clips.
     pub corpus_share: Option<(String, f64)>,
+    /// How the loss weighs the pose's numbers.
+    pub loss_weights: LossWeights,
 }
 
 /// Train; `log(step, loss, lr)` is called every `every` steps.
@@ -363,6 +408,7 @@ pub fn train(
         Some((corpus, _)) => clips.iter().filter(|c| &c.corpus == corpus).collect(),
         None => Vec::new(),
     };
+    let weights = pose_weights(s.loss_weights);
     let t0 = std::time::Instant::now();
     let mut done = 0;
     for step in 0..s.steps {
@@ -392,7 +438,7 @@ pub fn train(
             let spacing = rng.gen_range(s.spacing.0..=s.spacing.1);
             exs.push(example(&net.cfg, c, spacing, rng)?);
         }
-        let l = loss(net, &exs, dev)?;
+        let l = loss(net, &exs, &weights, dev)?;
         let v = l.to_scalar::<f32>()? as f64;
         if !v.is_finite() {
             bail!("training diverged at step {step} (loss {v}); lower --lr");

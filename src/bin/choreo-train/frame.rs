@@ -10,9 +10,10 @@ pub(crate) fn frame(a: FrameArgs, engine: &choreo::lm::engine::Engine) -> Result
             kinds.push(k.clone());
         }
     }
-    let known = if a.resume || a.init_from.is_some() {
-        let from = a.init_from.as_ref().unwrap_or(&a.out);
-        let (st, _, _): (tr::frame::FrameState, _, _) = tr::load_parts(from, &tr::device())?;
+    let known = if let Some(from) = &a.init_from {
+        Some(tr::frame::init_source(from, &tr::device())?.0)
+    } else if a.resume {
+        let (st, _, _): (tr::frame::FrameState, _, _) = tr::load_parts(&a.out, &tr::device())?;
         Some(st.vocabulary)
     } else {
         None

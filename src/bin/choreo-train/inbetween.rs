@@ -74,6 +74,7 @@ pub(crate) fn inbetween(a: InbetweenArgs) -> Result<()> {
         seed: a.seed,
         max_seconds: (a.max_seconds > 0.0).then_some(a.max_seconds),
         corpus_share,
+        loss_weights: a.loss_weights,
     };
     let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed);
     let t0 = std::time::Instant::now();

@@ -148,8 +148,10 @@ struct FrameArgs {
     #[arg(long)]
     resume: bool,
     /// Start a new run from the weights of this frame-model checkpoint
-    /// folder (its vocabulary too); parameters it lacks keep their fresh
-    /// initialisation (e.g. `g_cond_all` when adding --cond-every).
+    /// folder, or of an exported model folder such as models/default (its
+    /// vocabulary too; an export's fitted class heads are not taken);
+    /// parameters it lacks keep their fresh initialisation (e.g.
+    /// `g_cond_all` when adding --cond-every).
     #[arg(long, conflicts_with = "resume")]
     init_from: Option<PathBuf>,
     /// Export the configured network with its random initial weights to
@@ -353,6 +355,12 @@ struct InbetweenArgs {
     #[arg(long)]
     mirror: bool,
     /// Held-out spacings evaluated (frames at 60 fps).
+    /// How the loss weighs the pose's numbers: uniform (every number
+    /// alike, the bundled model's) or fk (by how far each rotation moves
+    /// the FK joint positions the evaluation measures; measured no better,
+    /// README "The learned in-betweener").
+    #[arg(long, value_enum, default_value_t = choreo::train::inbetween::LossWeights::Uniform)]
+    loss_weights: choreo::train::inbetween::LossWeights,
     #[arg(long, default_values_t = vec![10, 20, 30], value_delimiter = ',')]
     eval_spacing: Vec<usize>,
     #[arg(long, default_value_t = 0)]
