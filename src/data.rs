@@ -67,6 +67,38 @@ pub fn files_with_ext(dir: &std::path::Path, exts: &[&str]) -> Vec<PathBuf> {
     out
 }
 
+/// The corpus folders of the shared data, as they sit under its root.
+pub const CORPUS_FOLDERS: [&str; 5] = ["aistpp", "aistpp-vrm", "bandai", "cmu", "amass"];
+
+/// The key a motion is split by (held out or trained on): its SHA-256 is
+/// what every split sorts by. A motion's name is its path as the caller
+/// spelled it, so hashing the name made the split depend on where the data
+/// lives and how its folder was written (`../shared/data` and
+/// `/work/shared/data` held out different clips). The key is the path from
+/// the last corpus folder of [`CORPUS_FOLDERS`] on, written under
+/// `../shared/data/` as the bundled models' training saw it (so their
+/// held-out clips stay held out); a file outside those folders is keyed by
+/// its file name alone.
+pub fn split_key(name: &str) -> String {
+    let parts: Vec<&str> = name
+        .split(['/', '\\'])
+        .filter(|p| !p.is_empty() && *p != ".")
+        .collect();
+    match parts
+        .iter()
+        .rposition(|p| CORPUS_FOLDERS.contains(p))
+        .filter(|&i| i + 1 < parts.len())
+    {
+        Some(i) => format!("../shared/data/{}", parts[i..].join("/")),
+        None => parts.last().map_or(String::new(), |f| f.to_string()),
+    }
+}
+
+/// The SHA-256 (hex) of a motion's [`split_key`].
+pub fn split_hash(name: &str) -> String {
+    crate::lm::manifest::sha256_hex(split_key(name).as_bytes())
+}
+
 /// How many of a corpus's `n` sequences (sorted by a hash of their names)
 /// are held out: `val_fraction` of them, at least one when there are two
 /// or more, never all.
@@ -75,5 +107,33 @@ pub fn held_out_count(n: usize, val_fraction: f64) -> usize {
         0
     } else {
         ((n as f64 * val_fraction).round() as usize).clamp(1, n - 1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_split_key_does_not_depend_on_how_the_data_folder_is_spelled() {
+        let want = "../shared/data/aistpp-vrm/motions/gHO_sBM_cAll_d19_mHO3_ch02.pkl";
+        for name in [
+            want,
+            "/work/shared/data/aistpp-vrm/motions/gHO_sBM_cAll_d19_mHO3_ch02.pkl",
+            "/mnt/x//aistpp-vrm/./motions/gHO_sBM_cAll_d19_mHO3_ch02.pkl",
+            "aistpp-vrm/motions/gHO_sBM_cAll_d19_mHO3_ch02.pkl",
+        ] {
+            assert_eq!(split_key(name), want, "{name}");
+            assert_eq!(split_hash(name), split_hash(want), "{name}");
+        }
+        // The last corpus folder wins; outside the corpora, the file name.
+        assert_eq!(
+            split_key("/data/cmu/backup/bandai/take_01.bvh"),
+            "../shared/data/bandai/take_01.bvh"
+        );
+        assert_eq!(split_key("/home/me/rehearsals/take_01.bvh"), "take_01.bvh");
+        assert_eq!(split_key("take_01.bvh"), "take_01.bvh");
+        // A folder named like a corpus as the last part is not a corpus path.
+        assert_eq!(split_key("/x/y/bandai"), "bandai");
     }
 }

@@ -24,7 +24,6 @@
 
 use crate::features::lda::{window_features, Lda};
 use crate::keyframes::metrics::{fid, fid_range, geometric_features, kinetic_features};
-use crate::lm::manifest::sha256_hex;
 use crate::lm::model::MotionModel;
 use crate::lm::Sampling;
 use crate::motion::io::{read_path, ReadOptions};
@@ -316,7 +315,7 @@ pub fn read_split(
                 let tokens = vocab.prepare(&m).and_then(|p| vocab.encode_motion(&p));
                 match tokens {
                     Ok(t) if !t.is_empty() => clips.push((
-                        sha256_hex(m.name.as_bytes()),
+                        crate::data::split_hash(&m.name),
                         RealClip {
                             name: m.name,
                             labels: m.labels,

@@ -14,7 +14,6 @@ use crate::lm::embed::LmEmbedder;
 use crate::motion::io::{read_path, ReadOptions};
 use crate::motion::Labels;
 use serde::Serialize;
-use sha2::{Digest, Sha256};
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 
@@ -109,10 +108,7 @@ pub fn build_corpus_with(
             sequence.push(seq);
             labels.push(loaded.motion.labels.clone());
         }
-        let hash: String = Sha256::digest(loaded.motion.name.as_bytes())
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect();
+        let hash = crate::data::split_hash(&loaded.motion.name);
         by_corpus.entry(group).or_default().push((hash, seq));
         seq += 1;
     }

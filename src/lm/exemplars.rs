@@ -16,7 +16,6 @@
 //! hash of the name are held out), so held-out evaluations never see them.
 
 use super::LmError;
-use crate::lm::manifest::sha256_hex;
 use crate::motion::Labels;
 use crate::tokenize::vocab::Vocabulary;
 use base64::Engine;
@@ -202,7 +201,7 @@ impl Exemplars {
         let fl = vocab.frame_len();
         let len = ((seconds * vocab.fps).round() as usize).max(1);
         let mut order: Vec<usize> = (0..sequences.len()).collect();
-        order.sort_by_key(|&i| sha256_hex(sequences[i].0.as_bytes()));
+        order.sort_by_key(|&i| crate::data::split_hash(&sequences[i].0));
         let mut chosen: BTreeSet<usize> = BTreeSet::new();
         let mut counts: BTreeMap<(String, String), usize> = BTreeMap::new();
         for &i in &order {

@@ -154,7 +154,7 @@ pub fn build(
     }
     let (mut train, mut val) = (Vec::new(), Vec::new());
     for (corpus, mut list) in by {
-        list.sort_by_key(|m| sha256_hex(m.name.as_bytes()));
+        list.sort_by_key(|m| crate::data::split_hash(&m.name));
         let n_val = held_out_count(list.len(), val_fraction);
         for (i, m) in list.into_iter().enumerate() {
             let name = m.name.clone();
