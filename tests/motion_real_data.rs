@@ -342,3 +342,55 @@ fn aist_through_bvh_retarget_recovers_smpl13_directions() {
     let err = bone_direction_error(&b, &out, &map).unwrap();
     assert!(err.to_degrees() < 0.01);
 }
+
+/// The split does not move with the spelling of the data folder, and the
+/// bundled model's style exemplars all come from its training side: no
+/// exemplar's source is a clip `eval generate` holds out as real
+/// reference (session 17: the split hashed the path as typed, so
+/// `/work/shared/data` and `../shared/data` held out different clips).
+#[test]
+fn the_split_ignores_the_path_spelling_and_exemplars_are_never_held_out() {
+    use choreo::eval::generate::read_split;
+    use choreo::lm::exemplars::Exemplars;
+    use choreo::lm::frame::FrameManifest;
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default");
+    let (manifest, _, _) = FrameManifest::load(&model).unwrap();
+    let vocab = manifest.vocabulary;
+    let ex = Exemplars::load(&model, &vocab)
+        .unwrap()
+        .expect("bundled exemplars");
+    let file = |n: &str| {
+        Path::new(n)
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let sources: std::collections::BTreeSet<String> =
+        ex.items.iter().map(|e| file(&e.source)).collect();
+    for corpus in ["aistpp-vrm/motions", "bandai"] {
+        let Some(dir) = require(corpus) else { return };
+        let (held, train) = read_split(&vocab, &dir, 0.1, &mut |_| {}).unwrap();
+        // The same folder spelled another way: absolute, with `.` parts.
+        let other = std::fs::canonicalize(&dir).unwrap().join(".");
+        let (held2, _) = read_split(&vocab, &other, 0.1, &mut |_| {}).unwrap();
+        let names = |v: &[choreo::eval::generate::RealClip]| {
+            v.iter().map(|c| file(&c.name)).collect::<Vec<_>>()
+        };
+        let mut a = names(&held);
+        let mut b = names(&held2);
+        a.sort();
+        b.sort();
+        assert!(!a.is_empty() && !train.is_empty(), "{corpus}");
+        assert_eq!(a, b, "{corpus}: the held-out clips moved with the spelling");
+        let leaked: Vec<&String> = a.iter().filter(|n| sources.contains(*n)).collect();
+        assert!(
+            leaked.is_empty(),
+            "{corpus}: exemplars from held-out clips {leaked:?}"
+        );
+        let used = names(&train)
+            .iter()
+            .filter(|n| sources.contains(*n))
+            .count();
+        assert!(used > 0, "{corpus}: no exemplar from its training side");
+    }
+}
