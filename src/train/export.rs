@@ -53,7 +53,6 @@ pub(crate) fn attr_ints(name: &str, ints: &[i64]) -> AttributeProto {
     }
 }
 
-/// A tensor's type with named symbolic dimensions (`"B"`) or fixed ones.
 /// The float initialisers of an ONNX file as tensors, by name (scalars
 /// and shape constants included; callers pick their parameters by name).
 pub fn float_initializers(
@@ -88,6 +87,7 @@ pub fn float_initializers(
     Ok(t)
 }
 
+/// A tensor's type with named symbolic dimensions (`"B"`) or fixed ones.
 pub fn value_info(name: &str, elem: DataType, dims: &[&str]) -> ValueInfoProto {
     let dim = dims
         .iter()

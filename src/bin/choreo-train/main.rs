@@ -354,13 +354,13 @@ struct InbetweenArgs {
     /// the bundled model was trained without; --no-mirror is ignored here).
     #[arg(long)]
     mirror: bool,
-    /// Held-out spacings evaluated (frames at 60 fps).
     /// How the loss weighs the pose's numbers: uniform (every number
     /// alike, the bundled model's) or fk (by how far each rotation moves
     /// the FK joint positions the evaluation measures; measured no better,
     /// README "The learned in-betweener").
     #[arg(long, value_enum, default_value_t = choreo::train::inbetween::LossWeights::Uniform)]
     loss_weights: choreo::train::inbetween::LossWeights,
+    /// Held-out spacings evaluated (frames at 60 fps).
     #[arg(long, default_values_t = vec![10, 20, 30], value_delimiter = ',')]
     eval_spacing: Vec<usize>,
     #[arg(long, default_value_t = 0)]
