@@ -71,6 +71,7 @@ fn settings(steps: usize) -> RunSettings {
         class_weight: 1.0,
         mask_rate: 0.0,
         max_seconds: 0.0,
+        corpus_weights: Default::default(),
     }
 }
 
@@ -165,7 +166,7 @@ fn exported_graphs_match_the_trainer() {
     // `--init-from` an export: its vocabulary, and every trainer
     // parameter read back from the two graphs bit for bit, except the
     // class heads (fitted heads are not the trainer's).
-    let (v2, t, _) = fr::init_source(dir.path(), &Device::Cpu).unwrap();
+    let (v2, t, _, _) = fr::init_source(dir.path(), &Device::Cpu).unwrap();
     assert_eq!(v2, v);
     let mut checked = 0;
     for (name, var) in net.params.0.iter() {
@@ -531,4 +532,101 @@ fn closed_form_heads_are_fitted_and_written_into_the_graph() {
     // The original folder is untouched.
     let again = FrameSession::load(dir.path()).unwrap();
     assert_eq!(again.manifest.global_sha256, session.manifest.global_sha256);
+}
+
+#[test]
+fn corpus_weights_change_the_draws_and_bad_ones_are_refused() {
+    let v = vocab();
+    let mut c = corpus(&v);
+    let fl = v.frame_len();
+    for (i, s) in c.train.iter_mut().enumerate() {
+        s.corpus = if i % 2 == 0 { "a" } else { "b" }.to_string();
+    }
+    let frames = |name: &str| -> f64 {
+        c.train
+            .iter()
+            .filter(|s| s.corpus == name)
+            .map(|s| s.frames(fl) as f64)
+            .sum()
+    };
+    let (fa, fb) = (frames("a"), frames("b"));
+    let plain = FrameData::new(&c.train, fl).shares(&c.train);
+    assert!((plain["a"] - fa / (fa + fb)).abs() < 1e-9, "{plain:?}");
+    let w: BTreeMap<String, f64> = [("b".to_string(), 3.0)].into();
+    let weighted = FrameData::weighted(&c.train, fl, &w)
+        .unwrap()
+        .shares(&c.train);
+    assert!(
+        (weighted["b"] - 3.0 * fb / (fa + 3.0 * fb)).abs() < 1e-3,
+        "{weighted:?}"
+    );
+    assert!((weighted["a"] + weighted["b"] - 1.0).abs() < 1e-9);
+    // Draws follow the shares.
+    let d = FrameData::weighted(&c.train, fl, &w).unwrap();
+    let total = *d.cum.last().unwrap();
+    let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(1);
+    let n = 20_000;
+    let b = (0..n)
+        .filter(|_| {
+            let r = rand::Rng::gen_range(&mut rng, 0..total);
+            c.train[d.cum.partition_point(|&x| x <= r)].corpus == "b"
+        })
+        .count();
+    assert!((b as f64 / n as f64 - weighted["b"]).abs() < 0.02);
+    for (bad, says) in [
+        (
+            ("cmu", 2.0),
+            "no training sequence comes from corpus \"cmu\"",
+        ),
+        (("a", 0.0), "must be a positive number"),
+        (("a", f64::NAN), "must be a positive number"),
+    ] {
+        let w: BTreeMap<String, f64> = [(bad.0.to_string(), bad.1)].into();
+        let e = FrameData::weighted(&c.train, fl, &w)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("--corpus-weight") && e.contains(says), "{e}");
+    }
+}
+
+#[test]
+fn a_run_from_an_export_records_its_parents_time_and_licences() {
+    let v = vocab();
+    let c = corpus(&v);
+    let net = trained(&v, &c, 2);
+    let dir = tempfile::tempdir().unwrap();
+    let data = DataInfo {
+        licences: vec!["A: CC BY 4.0".into()],
+        ..DataInfo::default()
+    };
+    frame_export::export(
+        &net,
+        &v,
+        data,
+        BTreeMap::new(),
+        serde_json::json!({
+            "steps": 7,
+            "train_seconds": 10.0,
+            "total_train_seconds": 30.0,
+            "parent": {"steps": 3, "train_seconds": 20.0,
+                       "data": {"licences": ["B: CC BY-NC 4.0"]}},
+        }),
+        dir.path(),
+    )
+    .unwrap();
+    let (_, _, _, lineage) = fr::init_source(dir.path(), &Device::Cpu).unwrap();
+    assert_eq!(lineage["steps"], 7);
+    assert_eq!(fr::lineage_seconds(Some(&lineage)), 30.0);
+    assert!(!lineage
+        .to_string()
+        .contains(&dir.path().display().to_string()));
+    let child = DataInfo {
+        licences: vec!["C: free".into(), "A: CC BY 4.0".into()],
+        ..DataInfo::default()
+    };
+    assert_eq!(
+        fr::licences_with_parents(&child, Some(&lineage)),
+        vec!["A: CC BY 4.0", "B: CC BY-NC 4.0", "C: free"]
+    );
 }

@@ -98,6 +98,7 @@ fn trained(cfg: ModelConfig, v: &Vocabulary) -> Gpt {
         class_weight: 1.0,
         mask_rate: 0.15,
         max_seconds: 0.0,
+        corpus_weights: Default::default(),
     };
     let mut opt = AdamW::new(s.lr, s.weight_decay);
     let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(3);

@@ -119,6 +119,7 @@ pub fn train(
         classify_fraction: if a.classify.is_empty() { 0.0 } else { 0.5 },
         class_weight: 1.0,
         mask_rate: 0.15,
+        corpus_weights: Default::default(),
         max_seconds: a.max_seconds,
     };
     let (mut state, model, mut opt) = match (resume_state, init_state) {

@@ -3,7 +3,8 @@
 //! training loop, evaluation and checkpoints are in `frame_run`.
 
 pub use super::frame_run::{
-    evaluate, init_source, load, run, table, train_step, FrameData, FrameEval, FrameRun, FrameState,
+    evaluate, init_source, licences_with_parents, lineage_seconds, load, run, table, train_step,
+    FrameData, FrameEval, FrameRun, FrameState,
 };
 use super::model::{filled, insert_stack, normal, Params};
 use crate::lm::frame::{frame_changes, local_context, FrameConfig};

@@ -20,20 +20,44 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// Training sequences as value frames (mirrors beside), with cumulative
-/// frame counts for length-weighted draws.
+/// draw weights: a sequence's frame count times its corpus's weight.
 pub struct FrameData {
     pub seqs: Vec<(Vec<u32>, Option<Vec<u32>>, Labels)>,
     pub cum: Vec<usize>,
 }
 
 impl FrameData {
+    /// Length-weighted draws: every training frame equally likely.
     pub fn new(train: &[Sequence], fl: usize) -> FrameData {
+        Self::weighted(train, fl, &BTreeMap::new()).expect("no weights to check")
+    }
+
+    /// Draws where each corpus's frames count `weights[corpus]` times (1
+    /// for a corpus not named). A name that no training sequence has, or a
+    /// weight that is not a positive finite number, is an error naming it.
+    pub fn weighted(
+        train: &[Sequence],
+        fl: usize,
+        weights: &BTreeMap<String, f64>,
+    ) -> Result<FrameData> {
+        for (name, w) in weights {
+            if !train.iter().any(|s| &s.corpus == name) {
+                let mut have: Vec<&str> = train.iter().map(|s| s.corpus.as_str()).collect();
+                have.sort();
+                have.dedup();
+                bail!("--corpus-weight: no training sequence comes from corpus {name:?} (the corpora read: {have:?})");
+            }
+            if !(w.is_finite() && *w > 0.0) {
+                bail!("--corpus-weight: the weight of {name:?} must be a positive number, not {w}");
+            }
+        }
         let mut acc = 0;
         let mut cum = Vec::new();
         let seqs = train
             .iter()
             .map(|s| {
-                acc += s.frames(fl).max(1);
+                let w = weights.get(&s.corpus).copied().unwrap_or(1.0);
+                acc += ((s.frames(fl).max(1) as f64) * w).round().max(1.0) as usize;
                 cum.push(acc);
                 (
                     value_frames(&s.tokens, fl),
@@ -42,7 +66,19 @@ impl FrameData {
                 )
             })
             .collect();
-        FrameData { seqs, cum }
+        Ok(FrameData { seqs, cum })
+    }
+
+    /// Each corpus's share of the draws, for the log.
+    pub fn shares(&self, train: &[Sequence]) -> BTreeMap<String, f64> {
+        let total = *self.cum.last().unwrap_or(&1) as f64;
+        let mut out = BTreeMap::new();
+        let mut prev = 0;
+        for (s, &c) in train.iter().zip(&self.cum) {
+            *out.entry(s.corpus.clone()).or_insert(0.0) += (c - prev) as f64 / total;
+            prev = c;
+        }
+        out
     }
 }
 
@@ -206,6 +242,11 @@ pub struct FrameState {
     pub data: crate::lm::manifest::DataInfo,
     pub metrics: BTreeMap<String, f64>,
     pub train_seconds: f64,
+    /// Where a run started with `--init-from` came from: the parent's
+    /// steps, training seconds (its own parents included), data and
+    /// licences, and its own parent; no paths. None for a run from scratch.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parent: Option<serde_json::Value>,
 }
 
 impl FrameState {
@@ -226,6 +267,7 @@ impl FrameState {
             data: corpus.info.clone(),
             metrics: BTreeMap::new(),
             train_seconds: 0.0,
+            parent: None,
         }
     }
 }
@@ -248,11 +290,17 @@ pub fn load(dir: &std::path::Path, dev: &Device) -> Result<(FrameState, FrameNet
 /// `local.onnx`). An export's class heads (`cls.*`) are left out: they
 /// were fitted in closed form on other inputs (`fit-heads`) and mean
 /// nothing to the trainer's heads, which start fresh. Returns the
-/// vocabulary, the tensors by name and the file they came from.
+/// vocabulary, the tensors by name, the file they came from and the
+/// lineage a child run records as its parent (see [`FrameState::parent`]).
 pub fn init_source(
     from: &std::path::Path,
     dev: &Device,
-) -> Result<(Vocabulary, BTreeMap<String, candle_core::Tensor>, String)> {
+) -> Result<(
+    Vocabulary,
+    BTreeMap<String, candle_core::Tensor>,
+    String,
+    serde_json::Value,
+)> {
     use crate::lm::frame::{FrameManifest, FRAME_KIND};
     if from.join(crate::lm::manifest::MANIFEST_FILE).is_file() {
         let (file, name, m): (_, _, FrameManifest) = crate::lm::manifest::read_manifest(from)?;
@@ -269,10 +317,55 @@ pub fn init_source(
             let got = super::export::float_initializers(&path, dev)?;
             t.extend(got.into_iter().filter(|(k, _)| !k.starts_with("cls.")));
         }
-        return Ok((m.vocabulary, t, dir.display().to_string()));
+        let tr = &m.training;
+        let total = tr["total_train_seconds"]
+            .as_f64()
+            .or(tr["train_seconds"].as_f64())
+            .unwrap_or(0.0);
+        let lineage = serde_json::json!({
+            "source": "exported model",
+            "steps": tr["steps"],
+            "train_seconds": total,
+            "data": m.data,
+            "parent": tr["parent"],
+        });
+        return Ok((m.vocabulary, t, dir.display().to_string(), lineage));
     }
     let (st, t, file): (FrameState, _, _) = super::load_parts(from, dev)?;
-    Ok((st.vocabulary, t, file))
+    let lineage = serde_json::json!({
+        "source": "checkpoint",
+        "steps": st.step,
+        "train_seconds": st.train_seconds + lineage_seconds(st.parent.as_ref()),
+        "data": st.data,
+        "parent": st.parent,
+    });
+    Ok((st.vocabulary, t, file, lineage))
+}
+
+/// Training seconds of a lineage record (its parents included).
+pub fn lineage_seconds(parent: Option<&serde_json::Value>) -> f64 {
+    parent
+        .and_then(|p| p["train_seconds"].as_f64())
+        .unwrap_or(0.0)
+}
+
+/// Every licence in `data` and in the lineage's data, once each, sorted:
+/// what a manifest must name for weights that started from a parent.
+pub fn licences_with_parents(
+    data: &crate::lm::manifest::DataInfo,
+    parent: Option<&serde_json::Value>,
+) -> Vec<String> {
+    let mut all = data.licences.clone();
+    let mut p = parent;
+    while let Some(v) = p.filter(|v| !v.is_null()) {
+        if let Some(ls) = v["data"]["licences"].as_array() {
+            all.extend(ls.iter().filter_map(|l| l.as_str().map(String::from)));
+        }
+        p = v.get("parent");
+    }
+    all.sort();
+    all.dedup();
+    all
 }
 
 /// A frame-model run (the trainer's flags): where, the architecture (its
@@ -303,6 +396,9 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
             st.settings.steps = n;
         }
         st.settings.max_seconds = run.settings.max_seconds;
+        if !run.settings.corpus_weights.is_empty() {
+            st.settings.corpus_weights = run.settings.corpus_weights.clone();
+        }
         (st, net, opt)
     } else {
         let cfg = FrameConfig {
@@ -314,8 +410,10 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
         cfg.validate("--frame flags")
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         let net = FrameNet::new(cfg.clone(), &dev)?;
+        let mut parent = None;
         if let Some(from) = &run.init_from {
-            let (_, t, file) = init_source(from, &dev)?;
+            let (_, t, file, lineage) = init_source(from, &dev)?;
+            parent = Some(lineage);
             let fresh = net.params.load_matching(&t, &file)?;
             tracing::info!(
                 "started from {}; fresh parameters: {}",
@@ -327,12 +425,21 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
                 }
             );
         }
-        let st = FrameState::fresh(cfg, vocab, &run.settings, corpus);
+        let mut st = FrameState::fresh(cfg, vocab, &run.settings, corpus);
+        st.parent = parent;
         let opt = AdamW::new(run.settings.lr, run.settings.weight_decay);
         (st, net, opt)
     };
     let s = st.settings.clone();
-    let data = FrameData::new(&corpus.train, fl);
+    let data = FrameData::weighted(&corpus.train, fl, &s.corpus_weights)?;
+    tracing::info!(
+        "draws per corpus: {}",
+        data.shares(&corpus.train)
+            .iter()
+            .map(|(k, v)| format!("{k} {:.1} %", 100.0 * v))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
     tracing::info!(
         "frame model: {} parameters; global d {} × {} layers, local d {} × {} layers, context {} frames, change radius {}",
         net.params.count(),

@@ -44,6 +44,10 @@ pub struct RunSettings {
     pub mask_rate: f64,
     /// Stop after this many seconds of training (0 = no limit).
     pub max_seconds: f64,
+    /// How often a corpus's frames are drawn relative to the others (frame
+    /// model; a corpus not named keeps 1). Empty = length-weighted draws.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub corpus_weights: BTreeMap<String, f64>,
 }
 
 /// One logged point.

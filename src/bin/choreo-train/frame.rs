@@ -65,6 +65,7 @@ pub(crate) fn frame(a: FrameArgs, engine: &choreo::lm::engine::Engine) -> Result
             class_weight: 1.0,
             mask_rate: 0.0,
             max_seconds: a.max_seconds,
+            corpus_weights: parse_corpus_weights(&a.corpus_weight)?,
         },
     };
     if a.untrained {
@@ -89,6 +90,27 @@ pub(crate) fn frame(a: FrameArgs, engine: &choreo::lm::engine::Engine) -> Result
     print_frame_table(&net, &vocab, &corpus, &st.metrics)
 }
 
+/// `--corpus-weight NAME=W` values as a map (a name given twice, or a
+/// value that is not `NAME=number`, is an error naming the flag).
+pub(crate) fn parse_corpus_weights(
+    given: &[String],
+) -> Result<std::collections::BTreeMap<String, f64>> {
+    let mut out = std::collections::BTreeMap::new();
+    for g in given {
+        let (name, w) = g.split_once('=').with_context(|| {
+            format!("--corpus-weight: {g:?} is not NAME=WEIGHT (e.g. bandai=2)")
+        })?;
+        let w: f64 = w
+            .trim()
+            .parse()
+            .map_err(|_| anyhow::anyhow!("--corpus-weight: the weight in {g:?} is not a number"))?;
+        if out.insert(name.trim().to_string(), w).is_some() {
+            bail!("--corpus-weight: corpus {name:?} is given twice");
+        }
+    }
+    Ok(out)
+}
+
 /// Exports a frame model and checks the export against the trainer on the
 /// first held-out sequence.
 pub(crate) fn export_frame(
@@ -99,20 +121,20 @@ pub(crate) fn export_frame(
     dir: &Path,
     engine: &choreo::lm::engine::Engine,
 ) -> Result<()> {
-    let training = serde_json::json!({
+    let mut training = serde_json::json!({
         "steps": st.step,
         "settings": st.settings,
         "train_seconds": st.train_seconds,
         "history": st.history,
     });
-    let m = tr::frame_export::export(
-        net,
-        vocab,
-        st.data.clone(),
-        st.metrics.clone(),
-        training,
-        dir,
-    )?;
+    let mut data = st.data.clone();
+    if let Some(p) = &st.parent {
+        training["parent"] = p.clone();
+        training["total_train_seconds"] =
+            (st.train_seconds + tr::frame::lineage_seconds(Some(p))).into();
+        data.licences = tr::frame::licences_with_parents(&st.data, Some(p));
+    }
+    let m = tr::frame_export::export(net, vocab, data, st.metrics.clone(), training, dir)?;
     let seq = corpus
         .val
         .first()

@@ -207,6 +207,11 @@ struct FrameArgs {
     /// (0 = run all steps).
     #[arg(long, default_value_t = 0.0)]
     max_seconds: f64,
+    /// Draw this corpus's training frames W times as often as a length-
+    /// weighted draw would (NAME=W, repeatable; e.g. `--corpus-weight
+    /// bandai=2`). The held-out sets are unchanged.
+    #[arg(long = "corpus-weight", value_name = "NAME=W")]
+    corpus_weight: Vec<String>,
 }
 
 #[derive(Subcommand)]
