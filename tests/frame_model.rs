@@ -630,3 +630,39 @@ fn a_run_from_an_export_records_its_parents_time_and_licences() {
         vec!["A: CC BY 4.0", "B: CC BY-NC 4.0", "C: free"]
     );
 }
+
+/// A model exported without class heads (a run without --classify) gets
+/// head slots for the kinds `fit-heads --classify` names; its other
+/// weights travel unchanged (checked inside against the weights read
+/// back), so its language-model answers are the model's.
+#[test]
+fn head_slots_are_added_to_a_model_without_heads() {
+    use choreo::lm::frame_runtime::FrameSession;
+    use choreo::train::frame_heads as fh;
+    let v = vocab();
+    let bare = FrameConfig {
+        classes: vec![],
+        ..config(&v)
+    };
+    let net = FrameNet::new(bare, &Device::Cpu).unwrap();
+    let dir = export(&net, &v);
+    std::fs::write(dir.path().join("exemplars.json"), "{}").unwrap();
+    let tract = choreo::lm::engine::Engine::tract();
+    let out = tempfile::tempdir().unwrap();
+    let none: [String; 0] = [];
+    assert!(!fh::add_head_slots(dir.path(), &none, out.path(), &tract).unwrap());
+    let kinds = ["style".to_string()];
+    assert!(fh::add_head_slots(dir.path(), &kinds, out.path(), &tract).unwrap());
+    let s = FrameSession::load(out.path()).unwrap();
+    assert_eq!(s.config().classes.len(), 1);
+    assert_eq!(s.config().classes[0].0, "style");
+    assert!(out.path().join("exemplars.json").is_file());
+    // Asked again for the heads it now has: nothing to do.
+    let again = tempfile::tempdir().unwrap();
+    assert!(!fh::add_head_slots(out.path(), &kinds, again.path(), &tract).unwrap());
+    // A kind the vocabulary has no values for is refused, naming the flag.
+    let e = fh::add_head_slots(dir.path(), &["tempo".to_string()], again.path(), &tract)
+        .err()
+        .unwrap();
+    assert!(format!("{e:#}").contains("--classify"), "{e:#}");
+}

@@ -183,11 +183,20 @@ pub(crate) fn fit_heads(
     out: Option<&Path>,
     threads: usize,
     mirrors: bool,
+    classify: &[String],
     engine: &choreo::lm::engine::Engine,
 ) -> Result<()> {
     use choreo::train::frame_heads as fh;
     const HEAD: fh::Features = fh::Features::StateAndPose;
+    let staged = with_head_slots(model, classify, engine)?;
+    let model = staged.as_deref().unwrap_or(model);
     let session = choreo::lm::frame_runtime::FrameSession::load_with(model, engine)?;
+    if session.config().classes.is_empty() {
+        bail!(
+            "{}: the model has no class heads; name the label kinds to fit with --classify (e.g. --classify genre --classify style)",
+            model.display()
+        );
+    }
     let vocab = session.manifest.vocabulary.clone();
     let (vocab, corpus) = load_corpus(data, Some(&vocab), &[], false, vocab.fps)?;
     let fl = vocab.frame_len();
@@ -256,5 +265,27 @@ pub(crate) fn fit_heads(
         );
     }
     println!("{}", serde_json::to_string_pretty(&report)?);
+    if let Some(dir) = staged {
+        std::fs::remove_dir_all(dir)?;
+    }
     Ok(())
+}
+
+/// A temporary copy of `model` with head slots for the kinds `classify`
+/// names (see `frame_heads::add_head_slots`); None when it has them.
+fn with_head_slots(
+    model: &Path,
+    classify: &[String],
+    engine: &choreo::lm::engine::Engine,
+) -> Result<Option<PathBuf>> {
+    let dir = std::env::temp_dir().join(format!("choreo-fit-heads-{}", std::process::id()));
+    if !choreo::train::frame_heads::add_head_slots(model, classify, &dir, engine)? {
+        return Ok(None);
+    }
+    eprintln!(
+        "{}: head slots for {} added (the other weights read back and written unchanged)",
+        model.display(),
+        classify.join(", ")
+    );
+    Ok(Some(dir))
 }

@@ -254,6 +254,12 @@ enum Cmd {
         /// mirror-invariant, and mirrors cost 2–10 points held out.
         #[arg(long)]
         mirrors: bool,
+        /// Label kinds to fit heads for (repeatable). Default: the heads the
+        /// model already has. A model exported without heads (a run without
+        /// --classify) gets head slots added to its graph first, its other
+        /// weights unchanged.
+        #[arg(long)]
+        classify: Vec<String>,
     },
     /// Read every motion file under DIR and summarise it by corpus.
     Survey {
@@ -404,7 +410,16 @@ fn run(cli: Cli) -> Result<()> {
             out,
             threads,
             mirrors,
-        } => fit_heads(&model, &data, out.as_deref(), threads, mirrors, &engine),
+            classify,
+        } => fit_heads(
+            &model,
+            &data,
+            out.as_deref(),
+            threads,
+            mirrors,
+            &classify,
+            &engine,
+        ),
         Cmd::Train(a) => train(*a, &engine),
         Cmd::Frame(a) => frame(*a, &engine),
         Cmd::EvalFrame {

@@ -274,3 +274,63 @@ pub fn write_model(
     }
     Ok(())
 }
+
+/// Writes into `dir` a copy of the exported frame model `model` whose
+/// global graph has one class-head slot per kind in `classify` (values
+/// from the vocabulary), every other weight read back from the model's own
+/// graphs and written again unchanged, and checks that the copy answers
+/// as those weights do. The slots start untrained: `fit-heads` fits them.
+/// Files beside the graphs (style exemplars) are copied. Returns false
+/// (and writes nothing) when `classify` is empty or names exactly the
+/// heads the model has.
+pub fn add_head_slots(
+    model: &Path,
+    classify: &[String],
+    dir: &Path,
+    engine: &crate::lm::engine::Engine,
+) -> Result<bool> {
+    use crate::lm::frame::FrameManifest;
+    use crate::train::frame;
+    if classify.is_empty() {
+        return Ok(false);
+    }
+    let (_, _, m): (_, _, FrameManifest) = crate::lm::manifest::read_manifest(model)?;
+    let have: Vec<&String> = m.config.classes.iter().map(|(k, _)| k).collect();
+    if have.len() == classify.len() && classify.iter().all(|k| have.contains(&k)) {
+        return Ok(false);
+    }
+    let dev = crate::train::device();
+    let (vocab, tensors, file, _) = frame::init_source(model, &dev)?;
+    let mut cfg = m.config.clone();
+    cfg.classes = crate::train::flat_run::class_values(&vocab, classify).context("--classify")?;
+    let net = frame::FrameNet::new(cfg, &dev)?;
+    let fresh = net.params.load_matching(&tensors, &file)?;
+    if let Some(n) = fresh.iter().find(|n| !n.starts_with("cls.")) {
+        bail!("{}: the graphs lack the weight {n}", model.display());
+    }
+    crate::train::frame_export::export(&net, &vocab, m.data, m.metrics, m.training, dir)?;
+    for e in std::fs::read_dir(model)? {
+        let e = e?;
+        if e.path().is_file() && !dir.join(e.file_name()).exists() {
+            std::fs::copy(e.path(), dir.join(e.file_name()))?;
+        }
+    }
+    let values: Vec<u32> = (0..8 * net.cfg.slots)
+        .map(|i| (i % vocab.bins) as u32)
+        .collect();
+    let (worst, scale) = crate::train::frame_export::parity(
+        &net,
+        &vocab,
+        dir,
+        &values,
+        &Default::default(),
+        engine,
+    )?;
+    if !(worst <= 1e-3 * scale.max(1.0)) {
+        bail!(
+            "{}: the copy with head slots answers {worst:.1e} off the weights it was written from",
+            model.display()
+        );
+    }
+    Ok(true)
+}

@@ -21,7 +21,7 @@
 pub mod graph;
 pub mod linear;
 
-pub use graph::{rewrite_heads, write_model};
+pub use graph::{add_head_slots, rewrite_heads, write_model};
 pub use linear::{
     calibrate, fit_lda, grouped_cv, grouped_cv_scores, log_loss, Linear, MIN_SD, SHRINKS,
 };
