@@ -243,8 +243,13 @@ pub(crate) fn fit_heads(
     for k in &kinds {
         if let Some(c) = &k.calibration {
             eprintln!(
-                "{}: temperature {:.2} (out-of-fold log-loss {:.3} nats, untempered {:.3})",
-                k.kind, c.temperature, c.cv_log_loss, c.cv_log_loss_untempered
+                "{}: head on {}; temperature {:.2} (out-of-fold log-loss {:.3} nats, untempered {:.3}); held out {:.1}",
+                k.kind,
+                k.head_features,
+                c.temperature,
+                c.cv_log_loss,
+                c.cv_log_loss_untempered,
+                100.0 * k.new_head
             );
         }
     }

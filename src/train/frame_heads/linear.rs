@@ -16,6 +16,17 @@ pub struct Linear {
 }
 
 impl Linear {
+    /// The same head over `n` more features in front, which it ignores
+    /// (zero weights, zero centre).
+    pub fn padded_front(self, n: usize) -> Linear {
+        let pad = |v: Vec<f64>| [vec![0.0; n], v].concat();
+        Linear {
+            weights: self.weights.into_iter().map(pad).collect(),
+            bias: self.bias,
+            centre: pad(self.centre),
+        }
+    }
+
     pub fn scores(&self, x: &[f64]) -> Vec<f64> {
         let c = |i: usize| self.centre.get(i).copied().unwrap_or(0.0);
         self.weights

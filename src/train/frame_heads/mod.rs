@@ -261,8 +261,14 @@ pub struct KindReport {
     pub majority: f64,
     /// The graph's current head on the held-out windows.
     pub current_head: f64,
-    /// The fitted head (the method with the head's features) on them.
+    /// The fitted head on them.
     pub new_head: f64,
+    /// The features the written head reads: for a state-and-pose head,
+    /// whichever of that and the pose statistics alone scored higher in
+    /// grouped cross-validation on the training windows (ties: state and
+    /// pose); a pose-only head is written with zero state weights.
+    #[serde(default)]
+    pub head_features: String,
     /// The head's temperature, chosen on out-of-fold training scores.
     pub calibration: Option<Calibration>,
     pub methods: Vec<MethodScore>,
@@ -326,6 +332,10 @@ pub fn fit_heads(
         let mut head = None;
         let mut new_head = 0.0;
         let mut calibration = None;
+        let mut head_cv = f64::NEG_INFINITY;
+        let mut head_from = head_features.name();
+        // The state's width, for padding a pose-only head.
+        let d = train.first().map_or(0, |w| w.state.len());
         for (f, baseline) in METHODS {
             let (tx, ty, tg) = labelled(train, kind, values, f);
             let (vx, vy, _) = labelled(held_out, kind, values, f);
@@ -348,10 +358,13 @@ pub fn fit_heads(
             let first = runs.next().expect("a shrinkage grid");
             let (shrink, cv, oof) = runs.fold(first, |b, c| if c.1 > b.1 { c } else { b });
             let mut model = fit(&tx, &ty, shrink).context("the discriminant has no solution")?;
-            let is_head = f == head_features && !baseline;
+            let is_head = !baseline
+                && (f == head_features
+                    || (head_features == Features::StateAndPose && f == Features::Pose));
+            let mut cal = None;
             if is_head {
                 let (t, loss, loss1) = calibrate(&oof, &ty);
-                calibration = Some(Calibration {
+                cal = Some(Calibration {
                     temperature: t,
                     cv_log_loss: loss,
                     cv_log_loss_untempered: loss1,
@@ -363,9 +376,16 @@ pub fn fit_heads(
                 .zip(&vy)
                 .filter(|(x, &y)| model.predict(x) == y)
                 .count();
-            if is_head {
-                head = Some(model);
+            if is_head && (cv > head_cv || (cv == head_cv && f == head_features)) {
+                head_cv = cv;
+                head_from = f.name();
+                calibration = cal;
                 new_head = acc(hits);
+                head = Some(if f == head_features {
+                    model
+                } else {
+                    model.padded_front(d)
+                });
             }
             methods.push(MethodScore {
                 features: f.name(),
@@ -383,6 +403,7 @@ pub fn fit_heads(
             majority,
             current_head: acc(cur_hits),
             new_head,
+            head_features: head_from.to_string(),
             calibration,
             methods,
         });
