@@ -294,3 +294,29 @@ fn with_head_slots(
     );
     Ok(Some(dir))
 }
+
+/// The trainer's network rebuilt from an exported frame model's graphs
+/// (class heads left out: the export's are fitted in closed form on other
+/// inputs), with its vocabulary and manifest metrics.
+pub(crate) fn frame_net_from_export(
+    dir: &Path,
+    dev: &candle_core::Device,
+) -> Result<(
+    choreo::tokenize::vocab::Vocabulary,
+    tr::frame::FrameNet,
+    std::collections::BTreeMap<String, f64>,
+)> {
+    let (_, _, m): (_, _, choreo::lm::frame::FrameManifest) =
+        choreo::lm::manifest::read_manifest(dir)?;
+    let (vocab, tensors, file, _) = tr::frame::init_source(dir, dev)?;
+    let cfg = choreo::lm::frame::FrameConfig {
+        classes: vec![],
+        ..m.config.clone()
+    };
+    let net = tr::frame::FrameNet::new(cfg, dev)?;
+    let fresh = net.params.load_matching(&tensors, &file)?;
+    if !fresh.is_empty() {
+        bail!("{}: the graphs lack {}", dir.display(), fresh.join(", "));
+    }
+    Ok((vocab, net, m.metrics))
+}

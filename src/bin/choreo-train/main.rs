@@ -223,6 +223,10 @@ enum Cmd {
     /// Held-out bits/frame of a frame-model checkpoint, per corpus, beside
     /// the unigram, per-slot unigram and previous-frame delta baselines.
     EvalFrame {
+        /// A frame-model checkpoint folder, or an exported model folder
+        /// such as models/default (its weights read back from the graphs;
+        /// the table's class accuracies are then left out: fitted heads
+        /// are scored by `fit-heads`).
         #[arg(long)]
         checkpoint: PathBuf,
         #[command(flatten)]
@@ -428,6 +432,20 @@ fn run(cli: Cli) -> Result<()> {
             export,
         } => {
             let dev = tr::device();
+            if checkpoint
+                .join(choreo::lm::manifest::MANIFEST_FILE)
+                .is_file()
+            {
+                if export.is_some() {
+                    bail!(
+                        "--export: {} is already an exported model (it needs a checkpoint folder)",
+                        checkpoint.display()
+                    );
+                }
+                let (vocab0, net, metrics) = frame_net_from_export(&checkpoint, &dev)?;
+                let (vocab, corpus) = load_corpus(&data, Some(&vocab0), &[], false, vocab0.fps)?;
+                return print_frame_table(&net, &vocab, &corpus, &metrics);
+            }
             let (st, net, _) = tr::frame::load(&checkpoint, &dev)?;
             let (vocab, corpus) =
                 load_corpus(&data, Some(&st.vocabulary), &[], false, st.vocabulary.fps)?;
