@@ -1,10 +1,11 @@
 //! The frame-level motion model in candle (see `lm::frame` for the design):
 //! its parameters, forward pass, examples and batches, and losses. The
-//! training loop, evaluation and checkpoints are in `frame_run`.
+//! training loop, evaluation and checkpoints are in `frame_run`; where a
+//! run starts from (checkpoint or export) and its lineage in `frame_init`.
 
+pub use super::frame_init::{init_source, licences_with_parents, lineage_seconds, net_from_export};
 pub use super::frame_run::{
-    evaluate, init_source, licences_with_parents, lineage_seconds, load, run, table, train_step,
-    FrameData, FrameEval, FrameRun, FrameState,
+    evaluate, load, run, table, train_step, FrameData, FrameEval, FrameRun, FrameState,
 };
 use super::model::{filled, insert_stack, normal, Params};
 use crate::lm::frame::{frame_changes, local_context, FrameConfig};

@@ -9,6 +9,7 @@ pub mod flat_run;
 pub mod frame;
 pub mod frame_export;
 pub mod frame_heads;
+pub mod frame_init;
 pub mod frame_run;
 pub mod inbetween;
 pub mod model;

@@ -186,10 +186,32 @@ pub(crate) fn fit_heads(
     classify: &[String],
     engine: &choreo::lm::engine::Engine,
 ) -> Result<()> {
+    let staged = with_head_slots(model, classify, engine)?;
+    let result = fit_heads_on(
+        staged.as_deref().unwrap_or(model),
+        data,
+        out,
+        threads,
+        mirrors,
+        engine,
+    );
+    if let Some(dir) = staged {
+        std::fs::remove_dir_all(dir)?;
+    }
+    result
+}
+
+/// [`fit_heads`] on a model that has its head slots.
+fn fit_heads_on(
+    model: &Path,
+    data: &DataArgs,
+    out: Option<&Path>,
+    threads: usize,
+    mirrors: bool,
+    engine: &choreo::lm::engine::Engine,
+) -> Result<()> {
     use choreo::train::frame_heads as fh;
     const HEAD: fh::Features = fh::Features::StateAndPose;
-    let staged = with_head_slots(model, classify, engine)?;
-    let model = staged.as_deref().unwrap_or(model);
     let session = choreo::lm::frame_runtime::FrameSession::load_with(model, engine)?;
     if session.config().classes.is_empty() {
         bail!(
@@ -270,9 +292,6 @@ pub(crate) fn fit_heads(
         );
     }
     println!("{}", serde_json::to_string_pretty(&report)?);
-    if let Some(dir) = staged {
-        std::fs::remove_dir_all(dir)?;
-    }
     Ok(())
 }
 
@@ -293,30 +312,4 @@ fn with_head_slots(
         classify.join(", ")
     );
     Ok(Some(dir))
-}
-
-/// The trainer's network rebuilt from an exported frame model's graphs
-/// (class heads left out: the export's are fitted in closed form on other
-/// inputs), with its vocabulary and manifest metrics.
-pub(crate) fn frame_net_from_export(
-    dir: &Path,
-    dev: &candle_core::Device,
-) -> Result<(
-    choreo::tokenize::vocab::Vocabulary,
-    tr::frame::FrameNet,
-    std::collections::BTreeMap<String, f64>,
-)> {
-    let (_, _, m): (_, _, choreo::lm::frame::FrameManifest) =
-        choreo::lm::manifest::read_manifest(dir)?;
-    let (vocab, tensors, file, _) = tr::frame::init_source(dir, dev)?;
-    let cfg = choreo::lm::frame::FrameConfig {
-        classes: vec![],
-        ..m.config.clone()
-    };
-    let net = tr::frame::FrameNet::new(cfg, dev)?;
-    let fresh = net.params.load_matching(&tensors, &file)?;
-    if !fresh.is_empty() {
-        bail!("{}: the graphs lack {}", dir.display(), fresh.join(", "));
-    }
-    Ok((vocab, net, m.metrics))
 }

@@ -442,9 +442,9 @@ fn run(cli: Cli) -> Result<()> {
                         checkpoint.display()
                     );
                 }
-                let (vocab0, net, metrics) = frame_net_from_export(&checkpoint, &dev)?;
+                let (m, vocab0, net) = tr::frame::net_from_export(&checkpoint, vec![], &dev)?;
                 let (vocab, corpus) = load_corpus(&data, Some(&vocab0), &[], false, vocab0.fps)?;
-                return print_frame_table(&net, &vocab, &corpus, &metrics);
+                return print_frame_table(&net, &vocab, &corpus, &m.metrics);
             }
             let (st, net, _) = tr::frame::load(&checkpoint, &dev)?;
             let (vocab, corpus) =

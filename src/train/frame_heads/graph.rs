@@ -300,14 +300,9 @@ pub fn add_head_slots(
         return Ok(false);
     }
     let dev = crate::train::device();
-    let (vocab, tensors, file, _) = frame::init_source(model, &dev)?;
-    let mut cfg = m.config.clone();
-    cfg.classes = crate::train::flat_run::class_values(&vocab, classify).context("--classify")?;
-    let net = frame::FrameNet::new(cfg, &dev)?;
-    let fresh = net.params.load_matching(&tensors, &file)?;
-    if let Some(n) = fresh.iter().find(|n| !n.starts_with("cls.")) {
-        bail!("{}: the graphs lack the weight {n}", model.display());
-    }
+    let classes =
+        crate::train::flat_run::class_values(&m.vocabulary, classify).context("--classify")?;
+    let (m, vocab, net) = frame::net_from_export(model, classes, &dev)?;
     crate::train::frame_export::export(&net, &vocab, m.data, m.metrics, m.training, dir)?;
     for e in std::fs::read_dir(model)? {
         let e = e?;
