@@ -27,7 +27,13 @@ $T fit-heads --model "$run-more/export" --out "$run-more/model" $classes > "$run
 D=${CHOREO_DATA:-../shared/data}
 $C exemplars --model "$run-more/model" --data "$D/bandai" --data "$D/aistpp-vrm" --data "$D/aistpp" --data "$D/cmu"
 $C bench model --model "$run-more/model" --frames 600
-for n in 1 4; do
-  $C eval generate --model "$run-more/model" --data "$D/bandai" --labels style --per-label 3 --sampling 1:0:0.95:1:1 --exemplar auto --candidates $n --json
-  $C eval generate --model "$run-more/model" --data "$D/aistpp-vrm/motions" --labels genre --per-label 6 --sampling 1:0:0.95:1:1 --exemplar auto --candidates $n --json
+# The default sampling (t 1, top-p 0.95, keep_near 2, max_jump 48; README,
+# "Exemplars the heads choose"), on two sets of clips.
+for seed in 0 100; do
+  for n in 1 4; do
+    $C eval generate --model "$run-more/model" --data "$D/bandai" --labels style --per-label 6 --seed $seed \
+        --sampling 1:0:0.95:1:2:48 --exemplar auto --candidates $n --json
+    $C eval generate --model "$run-more/model" --data "$D/aistpp-vrm/motions" --labels genre --per-label 12 --seed $seed \
+        --sampling 1:0:0.95:1:2:48 --exemplar auto --candidates $n --json
+  done
 done

@@ -206,15 +206,17 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         seed: 9,
         guidance: 1.0,
         keep_near: 1,
+        max_jump: 0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;
-    let run = |forced: &dyn Fn(usize) -> Vec<Option<u32>>| -> Vec<u32> {
+    let run_with = |sampling: &Sampling, forced: &dyn Fn(usize) -> Vec<Option<u32>>| -> Vec<u32> {
         let mut g = model.generator(&labels, &[], sampling.clone()).unwrap();
         (0..n)
             .flat_map(|f| g.next_frame(&forced(f)).unwrap())
             .collect()
     };
+    let run = |forced: &dyn Fn(usize) -> Vec<Option<u32>>| run_with(&sampling, forced);
     let free = |_f: usize| vec![None; fl];
     let a = run(&free);
     let b = run(&free);
@@ -237,6 +239,41 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
     for (f, fr) in p.chunks_exact(fl).enumerate() {
         assert_eq!(fr[9], 100 + (f % 7) as u32);
     }
+    // max_jump: no slot moves further a frame (the shorter way round);
+    // this barely trained model does without it.
+    let biggest = |t: &[u32]| {
+        let frames: Vec<&[u32]> = t.chunks_exact(fl).collect();
+        frames
+            .windows(2)
+            .flat_map(|w| {
+                (0..fl - 1).map(move |s| {
+                    let d = (w[0][s] as i64 - w[1][s] as i64).abs();
+                    d.min(v.bins as i64 - d)
+                })
+            })
+            .max()
+            .unwrap()
+    };
+    assert!(biggest(&a) > 3, "the unlimited draw moves {}", biggest(&a));
+    for j in [1, 3] {
+        let limited = run_with(
+            &Sampling {
+                max_jump: j,
+                ..sampling.clone()
+            },
+            &free,
+        );
+        assert!(biggest(&limited) <= j as i64, "max_jump {j}");
+        assert!(biggest(&limited) > 0, "max_jump {j}: still moves");
+    }
+    let e = Sampling {
+        max_jump: 181,
+        ..sampling.clone()
+    }
+    .validate()
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("sampling.max_jump"), "{e}");
     // Classification reads the class head.
     let cls = model.classify(&a, 4).unwrap();
     assert_eq!(cls[0].0, "style");
@@ -362,7 +399,10 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
     }
     // Each row names its sampling.
     assert_eq!(rows[0].sampling, "greedy");
-    assert_eq!(rows[1].sampling, "t=1 top_k=0 top_p=0.95 keep_near=1");
+    assert_eq!(
+        rows[1].sampling,
+        "t=1 top_k=0 top_p=0.95 keep_near=2 max_jump=48"
+    );
     // Style exemplars from the training side only: none of their sources
     // is a held-out clip; rows with and without them, side by side.
     let (val, train) =
@@ -377,7 +417,9 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         &["genre".to_string()],
         1.0,
         1,
-    );
+        None,
+    )
+    .unwrap();
     assert!(!ex.is_empty());
     assert!(ex
         .items
@@ -400,8 +442,8 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
     assert_eq!(
         names,
         [
-            "t=1 top_k=0 top_p=0.95 keep_near=1",
-            "t=1 top_k=0 top_p=0.95 keep_near=1 +exemplar"
+            "t=1 top_k=0 top_p=0.95 keep_near=2 max_jump=48",
+            "t=1 top_k=0 top_p=0.95 keep_near=2 max_jump=48 +exemplar"
         ]
     );
     // Refused, each naming what is wrong: exemplars the model does not

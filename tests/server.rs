@@ -549,6 +549,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             seed: 7,
             guidance: 0.0,
             keep_near: 0,
+            max_jump: 0,
         }),
         exemplar: String::new(),
         candidates: 0,
@@ -649,36 +650,49 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     let gz = gz.output.unwrap().rotations;
     assert!(gz.iter().zip(&zr).all(|(a, b)| (a - b).abs() < 1e-12));
 
-    // keep_near over both transports: the same frames; out of range is a
-    // 400 naming the field.
-    let mut near = greq.clone();
-    near.sampling.as_mut().unwrap().keep_near = 1;
-    let gn = client.generate(near).await.unwrap().into_inner();
-    let nreq = json!({
-        "labels": {"genre": "BR"}, "frames": 24,
-        "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
-        "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
-        "sampling": {"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "keep_near": 1}
-    });
-    let (status, rn) =
-        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&nreq)))
-            .await
-            .unwrap();
-    assert_eq!(status, 200, "{rn}");
-    let nr = flat_rotations(&rn["output"]["rotations"]);
-    let gn = gn.output.unwrap().rotations;
-    assert!(gn.iter().zip(&nr).all(|(a, b)| (a - b).abs() < 1e-12));
-    assert_ne!(gn, m.rotations, "keep_near changes the draw");
-    let far = json!({"frames": 4, "sampling": {"keep_near": 65}});
-    let (status, e) =
-        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&far)))
-            .await
-            .unwrap();
-    assert_eq!(
-        (status, e["error"]["field"].as_str()),
-        (400, Some("sampling.keep_near")),
-        "{e}"
-    );
+    // keep_near and max_jump over both transports: the same frames; out of
+    // range is a 400 naming the field (gRPC's max_jump 0 = the recommended
+    // limit, as REST's absent field).
+    for (field, ok, bad) in [("keep_near", 1u32, 65u32), ("max_jump", 2, 181)] {
+        let mut g = greq.clone();
+        let gs = g.sampling.as_mut().unwrap();
+        if field == "keep_near" {
+            gs.keep_near = ok;
+        } else {
+            gs.max_jump = ok;
+        }
+        let g = client.generate(g).await.unwrap().into_inner();
+        let mut sampling = json!({"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7});
+        sampling[field] = json!(ok);
+        let req = json!({
+            "labels": {"genre": "BR"}, "frames": 24,
+            "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
+            "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
+            "sampling": sampling
+        });
+        let (status, r) =
+            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
+                .await
+                .unwrap();
+        assert_eq!(status, 200, "{field}: {r}");
+        let rr = flat_rotations(&r["output"]["rotations"]);
+        let gr = g.output.unwrap().rotations;
+        assert!(
+            gr.iter().zip(&rr).all(|(a, b)| (a - b).abs() < 1e-12),
+            "{field}"
+        );
+        assert_ne!(gr, m.rotations, "{field} {ok} changes the draw");
+        let far = json!({"frames": 4, "sampling": {field: bad}});
+        let (status, e) =
+            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&far)))
+                .await
+                .unwrap();
+        assert_eq!(
+            (status, e["error"]["field"].as_str()),
+            (400, Some(format!("sampling.{field}").as_str())),
+            "{e}"
+        );
+    }
 
     // Streaming gives the one-shot frames, one message each.
     let mut stream = client.generate_stream(greq).await.unwrap().into_inner();
@@ -820,13 +834,14 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .await
     .unwrap();
     for want in [
-        // The prompt request, the top_p 0 and the keep_near ones; the 400s:
-        // the bad exemplar, keep_near 65, the bad label and the over-long
-        // request; over gRPC the prompt request, best of 3, exemplar none,
-        // top_p 0 and keep_near 1, and a stream asking for 2 candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 3",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 4",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 5",
+        // The prompt request, the top_p 0, keep_near and max_jump ones; the
+        // 400s: the bad exemplar, keep_near 65, max_jump 181, the bad label
+        // and the over-long request; over gRPC the prompt request, best of
+        // 3, exemplar none, top_p 0, keep_near 1 and max_jump 2, and a
+        // stream asking for 2 candidates refused.
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 4",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 5",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 6",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
     ] {

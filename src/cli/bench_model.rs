@@ -85,6 +85,7 @@ pub fn run(
             seed: 1,
             guidance: 1.0,
             keep_near: 0,
+            max_jump: 0,
         },
     )?;
     let mut lat = Vec::with_capacity(frames);
@@ -122,6 +123,7 @@ pub fn run(
                 seed: 1,
                 guidance: 1.0,
                 keep_near: 0,
+                max_jump: 0,
             },
         )?;
         let mut lat = Vec::with_capacity(n);

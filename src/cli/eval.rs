@@ -41,6 +41,11 @@ pub enum EvalCmd {
         /// `candidates` does); a list runs each row once per entry.
         #[arg(long, value_delimiter = ',', default_values_t = [1u32])]
         candidates: Vec<u32>,
+        /// The first clip's sampling seed (clip i of a label uses seed + i):
+        /// another seed draws another set of clips, to see how far a row
+        /// moves with the draw.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
         #[arg(long)]
         json: bool,
     },
@@ -176,13 +181,14 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             sampling,
             exemplar,
             candidates,
+            seed,
             json,
         } => super::eval_generate::run(
             &model,
             &data,
             &labels,
             (per_label, seconds),
-            &sampling,
+            (&sampling, seed),
             (&exemplar, &candidates),
             json,
         ),

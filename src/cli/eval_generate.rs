@@ -7,19 +7,20 @@ use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use std::path::{Path, PathBuf};
 
-/// `T:K:P[:G[:N]]` (temperature, top-k, top-p, guidance, keep_near), or
-/// `greedy`.
+/// `T:K:P[:G[:N[:J]]]` (temperature, top-k, top-p, guidance, keep_near,
+/// max_jump), or `greedy`.
 pub fn parse_sampling(s: &str) -> Result<Sampling> {
     if s == "greedy" {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    let (t, k, p, g, n) = match parts[..] {
-        [t, k, p] => (t, k, p, "1", "0"),
-        [t, k, p, g] => (t, k, p, g, "0"),
-        [t, k, p, g, n] => (t, k, p, g, n),
+    let (t, k, p, g, n, j) = match parts[..] {
+        [t, k, p] => (t, k, p, "1", "0", "0"),
+        [t, k, p, g] => (t, k, p, g, "0", "0"),
+        [t, k, p, g, n] => (t, k, p, g, n, "0"),
+        [t, k, p, g, n, j] => (t, k, p, g, n, j),
         _ => bail!(
-            "--sampling: '{s}' is not T:K:P[:G[:N]] (temperature:top_k:top_p[:guidance[:keep_near]]) or greedy"
+            "--sampling: '{s}' is not T:K:P[:G[:N[:J]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump]]]) or greedy"
         ),
     };
     let sm = Sampling {
@@ -39,6 +40,9 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         keep_near: n
             .parse()
             .with_context(|| format!("--sampling: keep_near '{n}'"))?,
+        max_jump: j
+            .parse()
+            .with_context(|| format!("--sampling: max_jump '{j}'"))?,
     };
     sm.validate()
         .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;
@@ -50,7 +54,7 @@ pub fn run(
     data: &Path,
     labels: &str,
     (per_label, seconds): (usize, f64),
-    samplings: &[String],
+    (samplings, seed): (&[String], u64),
     (exemplar, candidates): (&str, &[u32]),
     json: bool,
 ) -> Result<()> {
@@ -63,7 +67,7 @@ pub fn run(
     let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
     let samplings = samplings
         .iter()
-        .map(|s| parse_sampling(s))
+        .map(|s| parse_sampling(s).map(|sm| Sampling { seed, ..sm }))
         .collect::<Result<Vec<_>>>()?;
     let exemplar_modes = match exemplar {
         "none" => vec![false],

@@ -25,6 +25,13 @@ pub struct ExemplarsArgs {
     /// Label kinds to cover (default: every kind the model is conditioned on).
     #[arg(long = "kind")]
     pub kinds: Vec<String>,
+    /// How spans are chosen: `heads` keeps, per label value, the spans the
+    /// model's own class heads find likeliest to carry it (4 candidate
+    /// spans per sequence; the clearest examples); `hash` takes the first
+    /// sequences by a hash of their names, one span a third of the way in.
+    /// Default: `heads` when the model has class heads, else `hash`.
+    #[arg(long, value_parser = ["heads", "hash"])]
+    pub choose: Option<String>,
 }
 
 pub fn run(a: ExemplarsArgs) -> Result<()> {
@@ -66,7 +73,51 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
         );
         sequences.extend(train.into_iter().map(|c| (c.name, c.labels, c.tokens)));
     }
-    let ex = Exemplars::build(&sequences, &vocab, &kinds, a.seconds, a.per_label);
+    let heads = m.class_kinds();
+    let by_heads = match a.choose.as_deref() {
+        Some("heads") if heads.is_empty() => {
+            bail!("--choose heads: the model has no class heads (fit them with choreo-train fit-heads)")
+        }
+        Some("heads") => true,
+        Some(_) => false,
+        None => !heads.is_empty(),
+    };
+    if by_heads {
+        let unjudged: Vec<&String> = kinds.iter().filter(|k| !heads.contains(k)).collect();
+        eprintln!(
+            "choosing spans by the model's class heads ({}){}",
+            heads.join(", "),
+            if unjudged.is_empty() {
+                String::new()
+            } else {
+                format!("; by name hash for {unjudged:?} (no head)")
+            }
+        );
+    }
+    let judge = |t: &[u32]| m.classify(t, 1);
+    let t0 = std::time::Instant::now();
+    let ex = Exemplars::build(
+        &sequences,
+        &vocab,
+        &kinds,
+        a.seconds,
+        a.per_label,
+        by_heads.then_some(&judge as &choreo::lm::exemplars::Judge<'_>),
+    )
+    .context("judging candidate spans")?;
+    if by_heads {
+        let ps: Vec<f64> = ex
+            .items
+            .iter()
+            .flat_map(|e| e.chosen_for.iter().filter_map(|c| c.p))
+            .collect();
+        eprintln!(
+            "judged in {:.0} s; mean probability of the chosen value {:.2} over {} choices",
+            t0.elapsed().as_secs_f64(),
+            ps.iter().sum::<f64>() / ps.len().max(1) as f64,
+            ps.len()
+        );
+    }
     if ex.is_empty() {
         bail!("--data: no training sequence carries a label of {kinds:?} the model knows");
     }

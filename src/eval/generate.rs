@@ -98,8 +98,13 @@ pub fn sampling_name(s: &Sampling) -> String {
         } else {
             format!(" keep_near={}", s.keep_near)
         };
+        let j = if s.max_jump == 0 {
+            String::new()
+        } else {
+            format!(" max_jump={}", s.max_jump)
+        };
         format!(
-            "t={} top_k={} top_p={}{g}{n}",
+            "t={} top_k={} top_p={}{g}{n}{j}",
             s.temperature, s.top_k, s.top_p
         )
     }

@@ -38,6 +38,10 @@ pub struct Exemplar {
     pub frames: usize,
     /// Whole frames of tokens, little-endian u16, base64.
     pub tokens: String,
+    /// The label values it was chosen for (files written before this
+    /// field have none: every matching span is then in the pool).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub chosen_for: Vec<Chosen>,
 }
 
 impl Exemplar {
@@ -162,20 +166,28 @@ impl Exemplars {
     }
 
     /// The exemplar for `labels`: among the spans whose source carries the
-    /// most of the asked-for labels (at least one), the one `seed` picks.
-    /// None when `labels` is empty or no span shares any of them.
+    /// most of the asked-for labels (at least one), those chosen for the
+    /// most of them (a span of a happy walk chosen as a clear walk is not
+    /// a clear example of happy), the one `seed` picks. None when `labels`
+    /// is empty or no span shares any of them.
     pub fn pick(&self, labels: &Labels, seed: u64) -> Option<(&Exemplar, &[u32])> {
         if labels.is_empty() {
             return None;
         }
         let score = |e: &Exemplar| {
-            labels
+            let carries = labels
                 .iter()
                 .filter(|(k, v)| e.labels.get(*k) == Some(*v))
-                .count()
+                .count();
+            let chosen = e
+                .chosen_for
+                .iter()
+                .filter(|c| labels.get(&c.kind) == Some(&c.value))
+                .count();
+            (carries, chosen)
         };
-        let best = self.items.iter().map(score).max().unwrap_or(0);
-        if best == 0 {
+        let best = self.items.iter().map(score).max().unwrap_or((0, 0));
+        if best.0 == 0 {
             return None;
         }
         let pool: Vec<usize> = (0..self.items.len())
@@ -186,50 +198,130 @@ impl Exemplars {
     }
 
     /// Builds exemplars from training sequences (name, labels, frame
-    /// tokens): for every label value of `kinds`, up to `per_label`
-    /// sequences (in the order of a hash of their names, so the choice does
-    /// not depend on file order), each giving one span of `seconds` from a
-    /// third of the way in (the start of a take is often a still pose).
-    /// A sequence chosen for several values is stored once.
+    /// tokens): for every label value of `kinds`, up to `per_label` spans
+    /// of `seconds`, each from a different sequence. A span chosen for
+    /// several values is stored once, and records which it was chosen for.
+    ///
+    /// Without a judge, the first `per_label` sequences of each value in
+    /// the order of a hash of their names (so the choice does not depend on
+    /// file order) give one span each, a third of the way in (the start of
+    /// a take is often a still pose).
+    ///
+    /// With a judge (class probabilities of a span's frame tokens, per
+    /// kind: a model's fitted heads), every long enough sequence offers
+    /// [`CANDIDATES`] spans spread through it, and each value keeps the
+    /// spans the judge finds likeliest to carry it: the clearest examples
+    /// of the value, which is what a generation continues. A kind the
+    /// judge does not classify falls back to the hash order.
     pub fn build(
         sequences: &[(String, Labels, Vec<u32>)],
         vocab: &Vocabulary,
         kinds: &[String],
         seconds: f64,
         per_label: usize,
-    ) -> Exemplars {
+        judge: Option<&Judge<'_>>,
+    ) -> Result<Exemplars, LmError> {
         let fl = vocab.frame_len();
         let len = ((seconds * vocab.fps).round() as usize).max(1);
-        let mut order: Vec<usize> = (0..sequences.len()).collect();
+        let mut order: Vec<usize> = (0..sequences.len())
+            .filter(|&i| sequences[i].2.len() / fl >= len)
+            .collect();
         order.sort_by_key(|&i| crate::data::split_hash(&sequences[i].0));
-        let mut chosen: BTreeSet<usize> = BTreeSet::new();
-        let mut counts: BTreeMap<(String, String), usize> = BTreeMap::new();
-        for &i in &order {
-            let (_, labels, tokens) = &sequences[i];
-            if tokens.len() / fl < len {
-                continue;
-            }
-            let mut wanted = false;
-            for k in kinds {
-                if let Some(v) = labels.get(k) {
-                    let known = vocab.labels.get(k).is_some_and(|s| s.contains(v));
-                    let c = counts.entry((k.clone(), v.clone())).or_default();
-                    if known && *c < per_label {
-                        *c += 1;
-                        wanted = true;
-                    }
+        // The (kind, value) pairs each sequence can stand for.
+        let pairs: Vec<Vec<(String, String)>> = sequences
+            .iter()
+            .map(|(_, labels, _)| {
+                kinds
+                    .iter()
+                    .filter_map(|k| {
+                        let v = labels.get(k)?;
+                        let known = vocab.labels.get(k).is_some_and(|s| s.contains(v));
+                        known.then(|| (k.clone(), v.clone()))
+                    })
+                    .collect()
+            })
+            .collect();
+        let candidates = |n: usize| -> Vec<usize> {
+            match judge {
+                None => vec![(n - len) / 3],
+                Some(_) => {
+                    let mut s: Vec<usize> = (1..=CANDIDATES)
+                        .map(|c| (n - len) * c / (CANDIDATES + 1))
+                        .collect();
+                    s.dedup();
+                    s
                 }
             }
-            if wanted {
-                chosen.insert(i);
+        };
+        // Every candidate span: (order rank, sequence, start, its judged
+        // probability per (kind, value) of its own labels).
+        type Cand = (usize, usize, usize, BTreeMap<(String, String), f64>);
+        let work: Vec<(usize, usize, usize)> = order
+            .iter()
+            .enumerate()
+            .filter(|(_, &i)| !pairs[i].is_empty())
+            .flat_map(|(rank, &i)| {
+                candidates(sequences[i].2.len() / fl)
+                    .into_iter()
+                    .map(move |st| (rank, i, st))
+            })
+            .collect();
+        let judged: Vec<Result<Cand, LmError>> = {
+            use rayon::prelude::*;
+            work.par_iter()
+                .map(|&(rank, i, st)| {
+                    let mut p = BTreeMap::new();
+                    if let Some(judge) = judge {
+                        let table = judge(&sequences[i].2[st * fl..(st + len) * fl])?;
+                        for (k, v) in &pairs[i] {
+                            let prob = table
+                                .iter()
+                                .find(|(tk, _)| tk == k)
+                                .and_then(|(_, vs)| vs.iter().find(|(tv, _)| tv == v))
+                                .map(|(_, q)| *q);
+                            if let Some(q) = prob {
+                                p.insert((k.clone(), v.clone()), q);
+                            }
+                        }
+                    }
+                    Ok((rank, i, st, p))
+                })
+                .collect()
+        };
+        let judged: Vec<Cand> = judged.into_iter().collect::<Result<_, _>>()?;
+        // Per (kind, value): candidates best first (judged probability,
+        // then hash order), one span per sequence.
+        let mut by_pair: BTreeMap<(String, String), Vec<&Cand>> = BTreeMap::new();
+        for c in &judged {
+            for pair in &pairs[c.1] {
+                by_pair.entry(pair.clone()).or_default().push(c);
+            }
+        }
+        let mut chosen: BTreeMap<(usize, usize), Vec<Chosen>> = BTreeMap::new();
+        for (pair, mut cands) in by_pair {
+            cands.sort_by(|a, b| {
+                let pa = a.3.get(&pair).copied().unwrap_or(0.0);
+                let pb = b.3.get(&pair).copied().unwrap_or(0.0);
+                pb.total_cmp(&pa).then(a.0.cmp(&b.0)).then(a.2.cmp(&b.2))
+            });
+            let mut used = BTreeSet::new();
+            for c in cands {
+                if used.len() == per_label {
+                    break;
+                }
+                if used.insert(c.1) {
+                    chosen.entry((c.1, c.2)).or_default().push(Chosen {
+                        kind: pair.0.clone(),
+                        value: pair.1.clone(),
+                        p: c.3.get(&pair).copied(),
+                    });
+                }
             }
         }
         let mut items = Vec::new();
         let mut decoded = Vec::new();
-        for i in chosen {
+        for ((i, st), chosen_for) in chosen {
             let (name, labels, tokens) = &sequences[i];
-            let n = tokens.len() / fl;
-            let st = (n - len) / 3;
             let span = tokens[st * fl..(st + len) * fl].to_vec();
             // The file name only: the path it was read from is this
             // machine's, and answers repeat it.
@@ -242,17 +334,35 @@ impl Exemplars {
                 start_frame: st,
                 frames: len,
                 tokens: Exemplar::encode(&span),
+                chosen_for,
             });
             decoded.push(span);
         }
-        Exemplars {
+        Ok(Exemplars {
             fps: vocab.fps,
             frame_len: fl,
             seconds: len as f64 / vocab.fps,
             items,
             decoded,
-        }
+        })
     }
+}
+
+/// Candidate spans per sequence when a judge chooses.
+pub const CANDIDATES: usize = 4;
+
+/// Class probabilities per kind of a span's frame tokens (a model's
+/// `classify`).
+pub type Judge<'a> = dyn Fn(&[u32]) -> Result<crate::lm::model::ClassTable, LmError> + Sync + 'a;
+
+/// A label value an exemplar was chosen for, and how likely the judge
+/// found the value in it (absent when no judge chose).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Chosen {
+    pub kind: String,
+    pub value: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p: Option<f64>,
 }
 
 /// A well-mixed index from a request's seed (consecutive seeds pick

@@ -269,20 +269,77 @@ fn draw(
     let Some(p) = p1 else {
         return sampling.draw(abs, rng) as u32;
     };
-    // The small changes stay drawable however the tail is cut (keep_near).
     let (r0, near) = (c.radius as i64, sampling.keep_near as i64);
+    let bins = c.bins as i64;
+    // max_jump: a bin the slot may reach (the shorter way round). The
+    // change window's targets lie within r0 bins, so they need masking
+    // only under a limit below r0; the escape only when no bin outside the
+    // window is reachable.
+    let jump = sampling.max_jump as i64;
+    let reach = |b: i64| {
+        let d = (b - p as i64).abs();
+        jump == 0 || d.min(bins - d) <= jump
+    };
+    let mut limited;
+    let rel = if jump > 0 && (jump < r0 || !escapable(p as i64, r0, jump, bins)) {
+        limited = rel.to_vec();
+        for (i, x) in limited[..=2 * r0 as usize].iter_mut().enumerate() {
+            if !reach(p as i64 + i as i64 - r0) {
+                *x = f32::NEG_INFINITY;
+            }
+        }
+        if !escapable(p as i64, r0, jump, bins) {
+            limited[c.esc() as usize] = f32::NEG_INFINITY;
+        }
+        &limited[..]
+    } else {
+        rel
+    };
+    // The small changes stay drawable however the tail is cut (keep_near).
     let k = sampling.draw_keeping(rel, rng, |i| {
         near > 0 && i != c.esc() as usize && (i as i64 - r0).abs() <= near
     }) as u32;
     if k != c.esc() {
-        return (p as i64 + k as i64 - c.radius as i64).clamp(0, c.bins as i64 - 1) as u32;
+        return (p as i64 + k as i64 - r0).clamp(0, bins - 1) as u32;
     }
     let mut masked = abs.to_vec();
-    let r = c.radius as i64;
     for (b, x) in masked.iter_mut().enumerate() {
-        if (b as i64 - p as i64).abs() <= r {
+        if (b as i64 - p as i64).abs() <= r0 || !reach(b as i64) {
             *x = f32::NEG_INFINITY;
         }
     }
     sampling.draw(&masked, rng) as u32
+}
+
+/// Whether a slot at bin `p` can escape its change window (a bin more than
+/// `r0` away) and still move at most `jump` bins the shorter way round
+/// (`jump` > 0): a bin just outside the window when `jump` > `r0`, else
+/// only a wrap-around one, at least `bins − jump` away.
+fn escapable(p: i64, r0: i64, jump: i64, bins: i64) -> bool {
+    let far = p.max(bins - 1 - p);
+    far > r0 && (jump > r0 || far >= bins - jump)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn escapable_matches_a_search_over_every_bin() {
+        for bins in [10i64, 17, 360] {
+            for r0 in [1i64, 3, 4] {
+                for jump in 1..=bins / 2 {
+                    for p in 0..bins {
+                        let search = (0..bins).any(|b| {
+                            let d = (b - p).abs();
+                            d > r0 && d.min(bins - d) <= jump
+                        });
+                        assert_eq!(
+                            super::escapable(p, r0, jump, bins),
+                            search,
+                            "bins {bins} r0 {r0} jump {jump} p {p}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

@@ -89,8 +89,19 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.guidance
     };
+    // proto3 cannot tell 0 from absent: 0 = the recommended limit, and
+    // 180 (half a turn) already allows every move.
+    let max_jump = if s.max_jump == 0 {
+        r.max_jump
+    } else {
+        s.max_jump
+    };
     if s.temperature == 0.0 && s.top_k == 0 && s.top_p == 0.0 && s.keep_near == 0 {
-        return crate::lm::Sampling { guidance, ..r };
+        return crate::lm::Sampling {
+            guidance,
+            max_jump,
+            ..r
+        };
     }
     crate::lm::Sampling {
         temperature: s.temperature,
@@ -99,6 +110,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         seed: s.seed,
         guidance,
         keep_near: s.keep_near,
+        max_jump,
     }
 }
 

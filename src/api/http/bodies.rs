@@ -184,9 +184,12 @@ pub struct SamplingJson {
     /// conditioning); absent = the recommended value.
     pub guidance: Option<f64>,
     /// Changes of at most this many bins never cut by top_k / top_p
-    /// (frame model); absent = 1 with the recommended setting, 0 with an
+    /// (frame model); absent = 2 with the recommended setting, 0 with an
     /// explicit temperature.
     pub keep_near: Option<u32>,
+    /// No slot moves more than this many bins a frame (frame model);
+    /// absent = the recommended value, 0 = no limit.
+    pub max_jump: Option<u32>,
 }
 
 impl SamplingJson {
@@ -202,6 +205,7 @@ impl SamplingJson {
                 top_p: top_p.unwrap_or(r.top_p),
                 guidance,
                 keep_near: self.keep_near.unwrap_or(r.keep_near),
+                max_jump: self.max_jump.unwrap_or(r.max_jump),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -211,6 +215,7 @@ impl SamplingJson {
                 seed: self.seed,
                 guidance,
                 keep_near: self.keep_near.unwrap_or(0),
+                max_jump: self.max_jump.unwrap_or(r.max_jump),
             },
         }
     }

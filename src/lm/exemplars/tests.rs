@@ -40,7 +40,7 @@ fn build_pick_and_round_trip() {
         seq("short", "sad", "run", 10, &v), // under the span: never chosen
     ];
     let kinds = vec!["style".to_string(), "content".to_string()];
-    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 1);
+    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 1, None).unwrap();
     let len = (2.0 * v.fps).round() as usize;
     assert!(ex
         .items
@@ -80,7 +80,7 @@ fn build_pick_and_round_trip() {
         assert_eq!(ex.pick(&happy, s).unwrap().0.labels["style"], "happy");
     }
     // With two per value, both happy sequences are kept and seeds reach both.
-    let two = Exemplars::build(&seqs, &v, &kinds, 2.0, 2);
+    let two = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, None).unwrap();
     let picked: BTreeSet<&str> = (0..50)
         .map(|s| two.pick(&happy, s).unwrap().0.source.as_str())
         .collect();
@@ -118,4 +118,93 @@ fn build_pick_and_round_trip() {
     std::fs::remove_dir_all(&dir).unwrap();
     // No file: no exemplars, no error.
     assert!(Exemplars::load(&dir, &v).unwrap().is_none());
+}
+
+#[test]
+fn a_judge_keeps_the_clearest_spans_and_pick_prefers_them() {
+    let v = vocab();
+    let fl = v.frame_len();
+    let seqs = vec![
+        seq("a", "happy", "walk", 300, &v),
+        seq("b", "happy", "run", 300, &v),
+        seq("c", "happy", "walk", 300, &v),
+        seq("d", "sad", "walk", 300, &v),
+    ];
+    let kinds = vec!["style".to_string(), "content".to_string()];
+    // The judge: "happy" is likelier the later the span starts (frame
+    // tokens count frames), and "walk" the earlier; no head for anything
+    // else.
+    let judge = |t: &[u32]| -> Result<crate::lm::model::ClassTable, LmError> {
+        let start = t[0] as f64 / 300.0;
+        Ok(vec![
+            (
+                "style".to_string(),
+                vec![("happy".into(), start), ("sad".into(), 1.0 - start)],
+            ),
+            (
+                "content".to_string(),
+                vec![("walk".into(), 1.0 - start), ("run".into(), start)],
+            ),
+        ])
+    };
+    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge)).unwrap();
+    let len = (2.0 * v.fps).round() as usize;
+    let starts: Vec<usize> = (1..=CANDIDATES)
+        .map(|c| (300 - len) * c / (CANDIDATES + 1))
+        .collect();
+    let (first, last) = (starts[0], *starts.last().unwrap());
+    let chosen = |k: &str, val: &str| -> Vec<(&str, usize, f64)> {
+        ex.items
+            .iter()
+            .filter_map(|e| {
+                e.chosen_for
+                    .iter()
+                    .find(|c| c.kind == k && c.value == val)
+                    .map(|c| (e.source.as_str(), e.start_frame, c.p.unwrap()))
+            })
+            .collect()
+    };
+    // Two happy spans, from two different sequences, both the latest span
+    // of their sequence; walk's from the earliest.
+    let happy = chosen("style", "happy");
+    assert_eq!(happy.len(), 2);
+    assert_ne!(happy[0].0, happy[1].0);
+    assert!(happy.iter().all(|h| h.1 == last), "{happy:?}");
+    let walk = chosen("content", "walk");
+    assert_eq!(walk.len(), 2);
+    assert!(walk.iter().all(|w| w.1 == first), "{walk:?}");
+    // Sad has one sequence, and sad is likelier early.
+    assert_eq!(
+        chosen("style", "sad"),
+        vec![("d", first, 1.0 - first as f64 / 300.0)]
+    );
+    // Every stored span decodes to its source's frames.
+    for (e, t) in ex.items.iter().zip(&ex.decoded) {
+        assert_eq!(t.len(), len * fl);
+        assert_eq!(t[0], e.start_frame as u32);
+    }
+    // Pick for happy: only the spans chosen for happy, though walk spans of
+    // happy sequences carry the label too.
+    let mut want = Labels::new();
+    want.insert("style".into(), "happy".into());
+    for s in 0..40 {
+        let (e, _) = ex.pick(&want, s).unwrap();
+        assert!(
+            e.chosen_for.iter().any(|c| c.value == "happy"),
+            "{:?}",
+            e.chosen_for
+        );
+    }
+    // The file round-trips with the choices.
+    let dir = std::env::temp_dir().join(format!("choreo-exemplars-j-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    ex.save(&dir).unwrap();
+    let back = Exemplars::load(&dir, &v).unwrap().unwrap();
+    assert_eq!(back.items[0].chosen_for, ex.items[0].chosen_for);
+    std::fs::remove_dir_all(&dir).unwrap();
+    // A judge that fails fails the build.
+    let bad = |_: &[u32]| -> Result<crate::lm::model::ClassTable, LmError> {
+        Err(LmError::invalid("model", "classes", "no heads"))
+    };
+    assert!(Exemplars::build(&seqs, &v, &kinds, 2.0, 1, Some(&bad)).is_err());
 }
