@@ -376,6 +376,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         exemplars: None,
         exemplar_modes: vec![false],
         candidates: vec![1],
+        rank_every: 0,
     };
     let mut said = Vec::new();
     let rows = eval_generate(&model, &dir, &o, &mut |l| said.push(l)).unwrap();
@@ -436,6 +437,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         exemplars: Some(ex),
         exemplar_modes: vec![false, true],
         candidates: vec![1],
+        rank_every: 0,
     };
     let rows2 = eval_generate(&model, &dir, &with, &mut |_| {}).unwrap();
     let names: Vec<&str> = rows2.iter().map(|r| r.sampling.as_str()).collect();
@@ -475,6 +477,15 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
             },
             dir.as_path(),
             "candidates",
+        ),
+        (
+            GenOptions {
+                candidates: vec![2],
+                rank_every: 20,
+                ..o.clone()
+            },
+            dir.as_path(),
+            "rank_every",
         ),
         (o.clone(), empty.path(), "no readable motion"),
     ];

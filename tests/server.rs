@@ -553,6 +553,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         }),
         exemplar: String::new(),
         candidates: 0,
+        rank_every: 0,
     };
     let one = client.generate(greq.clone()).await.unwrap().into_inner();
     assert!(one.chosen.is_none(), "one candidate: nothing chosen");
@@ -570,6 +571,49 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     assert_eq!(c.candidates, 3);
     assert!(c.index < 3 && c.label_probability > 0.0 && c.label_probability <= 1.0);
     assert_eq!(best.frames, one.frames);
+    // Steering: three continuations of 8 frames ranked per round, one-shot
+    // and streamed alike (the same frames); the prompt's joints stay forced
+    // frame by frame (the root's path is the plain generation's).
+    let steer_req = pb::GenerateRequest {
+        candidates: 3,
+        rank_every: 8,
+        ..greq.clone()
+    };
+    let steered = client
+        .generate(steer_req.clone())
+        .await
+        .unwrap()
+        .into_inner();
+    let c = steered.chosen.clone().expect("steering says what it kept");
+    assert_eq!((c.candidates, c.rank_every), (3, 8));
+    assert!(c.index < 3 && c.label_probability > 0.0 && c.label_probability <= 1.0);
+    assert_eq!(steered.frames, one.frames);
+    let sm = steered.output.clone().unwrap();
+    assert_eq!(sm.translation, one.output.as_ref().unwrap().translation);
+    let mut st = client
+        .generate_stream(steer_req)
+        .await
+        .unwrap()
+        .into_inner();
+    let mut srot = Vec::new();
+    while let Some(f) = st.message().await.unwrap() {
+        srot.extend(f.rotations);
+    }
+    assert_eq!(srot, sm.rotations, "a steered stream equals its one-shot");
+    // A round longer than 200 frames, or steering with one candidate, is
+    // refused naming the field.
+    for (n, every, field) in [(3, 201, "rank_every"), (1, 8, "candidates")] {
+        let e = client
+            .generate(pb::GenerateRequest {
+                candidates: n,
+                rank_every: every,
+                ..greq.clone()
+            })
+            .await
+            .expect_err("refused");
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+        assert!(e.message().contains(field), "{}", e.message());
+    }
     // A stream cannot choose among whole clips; too many candidates, or
     // more frames of work than one request may ask for, is refused.
     for (n, frames, stream) in [(2, 24, true), (17, 24, false), (3, 1000, false)] {

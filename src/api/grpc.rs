@@ -60,6 +60,7 @@ impl Choreo for ChoreoGrpc {
                 candidates: c.candidates as u32,
                 index: c.index as u32,
                 label_probability: c.label_probability,
+                rank_every: c.rank_every,
             }),
         }))
     }

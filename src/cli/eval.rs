@@ -41,6 +41,11 @@ pub enum EvalCmd {
         /// `candidates` does); a list runs each row once per entry.
         #[arg(long, value_delimiter = ',', default_values_t = [1u32])]
         candidates: Vec<u32>,
+        /// With more than one candidate: rank continuations of this many
+        /// frames while the clip is made and go on from the best (what a
+        /// request's `rank_every` does); 0 ranks whole clips.
+        #[arg(long, default_value_t = 0)]
+        rank_every: usize,
         /// The first clip's sampling seed (clip i of a label uses seed + i):
         /// another seed draws another set of clips, to see how far a row
         /// moves with the draw.
@@ -181,6 +186,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             sampling,
             exemplar,
             candidates,
+            rank_every,
             seed,
             json,
         } => super::eval_generate::run(
@@ -189,7 +195,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             &labels,
             (per_label, seconds),
             (&sampling, seed),
-            (&exemplar, &candidates),
+            (&exemplar, &candidates, rank_every),
             json,
         ),
         EvalCmd::Keyframes {

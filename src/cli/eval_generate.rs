@@ -55,7 +55,7 @@ pub fn run(
     labels: &str,
     (per_label, seconds): (usize, f64),
     (samplings, seed): (&[String], u64),
-    (exemplar, candidates): (&str, &[u32]),
+    (exemplar, candidates, rank_every): (&str, &[u32], usize),
     json: bool,
 ) -> Result<()> {
     if per_label == 0 {
@@ -90,6 +90,7 @@ pub fn run(
         },
         exemplars,
         candidates: candidates.to_vec(),
+        rank_every,
     };
     let rows = eval_generate(&m, data, &o, &mut |line| eprintln!("{line}"))?;
     if json {

@@ -81,6 +81,9 @@ pub struct GenOptions {
     pub exemplar_modes: Vec<bool>,
     /// Best of N ([`crate::lm::best_of`]): each row runs once per entry.
     pub candidates: Vec<u32>,
+    /// With more than one candidate: rank continuations of this many
+    /// frames as the clip is made ([`crate::lm::steer`]); 0 ranks whole clips.
+    pub rank_every: usize,
 }
 
 /// A sampling setting as a row names it.
@@ -486,6 +489,23 @@ pub fn eval_generate(
                 let mut s = sampling.clone();
                 s.seed = sampling.seed.wrapping_add(i as u64);
                 let free = vec![None; fl];
+                if candidates > 1 && o.rank_every > 0 {
+                    let seed: &[u32] = match (&o.exemplars, with_exemplar) {
+                        (Some(ex), true) => ex.pick(&labels, s.seed).map_or(&[][..], |p| p.1),
+                        _ => &[],
+                    };
+                    let mut g =
+                        model.steered(&labels, seed, s.clone(), (candidates, o.rank_every))?;
+                    let mut toks = Vec::with_capacity(seg * fl);
+                    for _ in 0..seg {
+                        toks.extend(g.next_frame(&|_| free.clone())?);
+                    }
+                    gen.push((
+                        v.clone(),
+                        clip_stats(&vocab, &toks, in_place).map_err(|e| anyhow::anyhow!("{e}"))?,
+                    ));
+                    continue;
+                }
                 let toks = crate::lm::best_of::best_of(model, &labels, candidates, |j| {
                     let mut sj = s.clone();
                     sj.seed = crate::lm::best_of::candidate_seed(s.seed, j);
@@ -525,7 +545,9 @@ pub fn eval_generate(
                 "{}{}{}",
                 sampling_name(sampling),
                 if with_exemplar { " +exemplar" } else { "" },
-                if candidates > 1 {
+                if candidates > 1 && o.rank_every > 0 {
+                    format!(" steer-{candidates}-every-{}", o.rank_every)
+                } else if candidates > 1 {
                     format!(" best-of-{candidates}")
                 } else {
                     String::new()

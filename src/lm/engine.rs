@@ -78,7 +78,9 @@ impl Outputs {
 
 /// Key/value caches of fixed capacity, `[1, heads, cap, d_head]` per layer,
 /// and how many rows hold positions. Passed to a step after its other
-/// inputs, as (k, v) per layer.
+/// inputs, as (k, v) per layer. A clone shares the tensors until either
+/// side writes (copy on write), so forking a generation is cheap.
+#[derive(Clone)]
 pub struct Cache {
     k: Vec<Arc<Tensor>>,
     v: Vec<Arc<Tensor>>,

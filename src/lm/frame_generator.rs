@@ -43,6 +43,10 @@ pub struct FrameGenerator {
     rng: StdRng,
     sampling: Sampling,
     pub produced: usize,
+    /// Per class kind (the config's order), the class heads' logits summed
+    /// over the frames produced so far: read from the unlabelled track
+    /// under guidance (as the heads were fitted), else the labelled one.
+    cls_sum: Vec<Vec<f64>>,
 }
 
 impl FrameGenerator {
@@ -104,9 +108,54 @@ impl FrameGenerator {
             rng: StdRng::seed_from_u64(sampling.seed),
             sampling,
             produced: 0,
+            cls_sum: c.classes.iter().map(|(_, v)| vec![0.0; v.len()]).collect(),
         };
         g.encode_window()?;
         Ok(g)
+    }
+
+    /// An independent copy of this generation from here on, drawing with
+    /// `seed`: the same window, caches and history (the caches are shared
+    /// until either side writes), its own run states.
+    pub fn fork(&self, seed: u64) -> Result<FrameGenerator, LmError> {
+        let tracks = self
+            .tracks
+            .iter()
+            .map(|t| -> Result<Track, LmError> {
+                Ok(Track {
+                    st: self.session.states()?.0,
+                    cond: t.cond.clone(),
+                    cache: t.cache.clone(),
+                    next: t.next.clone(),
+                    h: t.h.clone(),
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(FrameGenerator {
+            session: self.session.clone(),
+            tracks,
+            lstate: self.session.states()?.1,
+            window: self.window.clone(),
+            before: self.before.clone(),
+            h: self.h.clone(),
+            rng: StdRng::seed_from_u64(seed),
+            sampling: Sampling {
+                seed,
+                ..self.sampling.clone()
+            },
+            produced: self.produced,
+            cls_sum: self.cls_sum.clone(),
+        })
+    }
+
+    pub fn config(&self) -> &FrameConfig {
+        self.session.config()
+    }
+
+    /// Per class kind, the class heads' logits summed over the frames
+    /// produced so far (their mean is what `classify` would softmax).
+    pub fn class_logit_sums(&self) -> &[Vec<f64>] {
+        &self.cls_sum
     }
 
     /// The state the local decoder reads: the conditioned track's, or under
@@ -227,15 +276,22 @@ impl FrameGenerator {
             }
         }
         let i = self.window.len();
-        for t in &mut self.tracks {
-            t.h = session
-                .global_step(
-                    &mut t.st,
-                    &mut t.cache,
-                    &t.cond,
-                    Some((&frame, p1.as_deref())),
-                )?
-                .0;
+        let read = self.tracks.len() - 1;
+        for (ti, t) in self.tracks.iter_mut().enumerate() {
+            let (h, cls) = session.global_step(
+                &mut t.st,
+                &mut t.cache,
+                &t.cond,
+                Some((&frame, p1.as_deref())),
+            )?;
+            t.h = h;
+            if ti == read {
+                for (sum, l) in self.cls_sum.iter_mut().zip(&cls) {
+                    for (a, &x) in sum.iter_mut().zip(l) {
+                        *a += x as f64;
+                    }
+                }
+            }
             if i >= m - keep {
                 if i == m - keep {
                     let mut n = session.new_global_cache();

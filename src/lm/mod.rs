@@ -30,6 +30,7 @@ pub mod inbetween;
 pub mod manifest;
 pub mod model;
 pub mod runtime;
+pub mod steer;
 
 pub use generate::{classify, forced_frames, prompt_slots, FrameDecoder, Generator, Sampling};
 pub use manifest::Manifest;

@@ -112,6 +112,30 @@ impl MotionModel {
         })
     }
 
+    /// A generation steered by the class heads ([`super::steer`]): every
+    /// `every` frames the best of `candidates` continuations is kept.
+    /// Frame model only.
+    pub fn steered(
+        &self,
+        labels: &Labels,
+        seed_tokens: &[u32],
+        sampling: Sampling,
+        (candidates, every): (u32, usize),
+    ) -> Result<super::steer::Steered, LmError> {
+        match self {
+            MotionModel::Flat(_) => Err(LmError::invalid(
+                "request",
+                "rank_every",
+                "steering needs the frame model (this server runs the flat GPT); rank_every 0 ranks whole clips",
+            )),
+            MotionModel::Frame(s) => {
+                let seed = sampling.seed;
+                let g = FrameGenerator::new(s.clone(), labels, seed_tokens, sampling)?;
+                super::steer::Steered::new(g, labels, candidates, every, seed)
+            }
+        }
+    }
+
     /// Class probabilities of a motion's frame tokens (whole frames of the
     /// vocabulary's `frame_len`), averaged over at most `max_windows`
     /// windows of the model's context.

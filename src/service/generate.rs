@@ -57,8 +57,13 @@ pub struct GenerateParams {
     pub exemplar: String,
     /// Best of N ([`crate::lm::best_of`]): one-shot generation makes this
     /// many clips and returns the one the model's class heads find likeliest
-    /// to carry the labels; 0 or 1 = one clip. Streams take 1 only.
+    /// to carry the labels; 0 or 1 = one clip. Streams take 1 only,
+    /// unless steered.
     pub candidates: u32,
+    /// Steering ([`crate::lm::steer`]): with more than one candidate, rank
+    /// continuations of this many frames as the motion is made and go on
+    /// from the best (streams too); 0 = rank whole clips.
+    pub rank_every: u32,
 }
 
 /// The style exemplar a generation started from (context only, not in
@@ -74,7 +79,7 @@ pub struct ExemplarUsed {
 /// A generation ready to run: the generator and the forced slots.
 pub struct GenerateJob {
     pub session: MotionModel,
-    gen: MotionGenerator,
+    gen: Run,
     forced: Vec<Vec<Option<u32>>>,
     pub frames: usize,
     pub labels: Labels,
@@ -85,17 +90,37 @@ pub struct GenerateJob {
     others: Vec<(Vec<u32>, Option<ExemplarUsed>)>,
 }
 
+/// A job's running generation: plain (one clip, or the current
+/// candidate of a best of N), or steered by the class heads every
+/// `rank_every` frames.
+enum Run {
+    Plain(MotionGenerator),
+    Steered(crate::lm::steer::Steered, u32),
+}
+
 impl GenerateJob {
     /// The next frame's tokens.
     pub fn next(&mut self) -> Result<Vec<u32>, LmError> {
         let fl = self.session.vocabulary().frame_len();
-        let f = self.gen.produced();
-        let forced = self
-            .forced
-            .get(f)
-            .cloned()
-            .unwrap_or_else(|| vec![None; fl]);
-        self.gen.next_frame(&forced)
+        let forced = &self.forced;
+        let forced_at = |f: usize| forced.get(f).cloned().unwrap_or_else(|| vec![None; fl]);
+        match &mut self.gen {
+            Run::Steered(g, _) => g.next_frame(&forced_at),
+            Run::Plain(g) => g.next_frame(&forced_at(g.produced())),
+        }
+    }
+
+    /// What steering kept, once frames are made.
+    fn steered(&self) -> Option<ChosenCandidate> {
+        match &self.gen {
+            Run::Steered(g, every) => Some(ChosenCandidate {
+                candidates: g.candidates(),
+                index: g.kept(),
+                label_probability: g.log_prob.exp(),
+                rank_every: *every,
+            }),
+            Run::Plain(_) => None,
+        }
     }
 }
 
@@ -175,6 +200,30 @@ pub async fn generate_job(
             ),
         ));
     }
+    if p.rank_every > 0 && candidates < 2 {
+        return Err(ApiError::invalid(
+            "candidates",
+            format!(
+                "{candidates}: steering (rank_every {}) ranks 2 to {} continuations a round",
+                p.rank_every,
+                crate::lm::best_of::MAX_CANDIDATES
+            ),
+        ));
+    }
+    if p.rank_every > 0 {
+        let every = p.rank_every as usize;
+        let steer = session.steered(&p.labels, &seed, p.sampling.clone(), (candidates, every))?;
+        return Ok(GenerateJob {
+            gen: Run::Steered(steer, p.rank_every),
+            session,
+            forced,
+            frames,
+            labels: p.labels,
+            exemplar,
+            sampling: p.sampling,
+            others: Vec::new(),
+        });
+    }
     // Best of N: each candidate continues the exemplar its own seed picks
     // (candidate 0's is the one above), so the candidates differ more; a
     // seed motion is continued by all of them.
@@ -188,7 +237,7 @@ pub async fn generate_job(
             _ => (seed.clone(), None),
         })
         .collect();
-    let gen = session.generator(&p.labels, &seed, p.sampling.clone())?;
+    let gen = Run::Plain(session.generator(&p.labels, &seed, p.sampling.clone())?);
     Ok(GenerateJob {
         session,
         gen,
@@ -242,6 +291,10 @@ pub struct ChosenCandidate {
     /// The probability the model's class heads give it of the asked-for
     /// labels (their product, over the kinds the heads classify).
     pub label_probability: f64,
+    /// 0: whole clips were ranked. Else steered: continuations of this
+    /// many frames were ranked as the motion was made, and `index` is the
+    /// one kept in the last round.
+    pub rank_every: u32,
 }
 
 /// One-shot generation: every frame, decoded into one motion (SMPL-13 at
@@ -256,12 +309,31 @@ pub async fn generate(
         .heavy("generate", move || {
             let t0 = Instant::now();
             let model = job.session.clone();
+            if matches!(job.gen, Run::Steered(..)) {
+                let fl = model.vocabulary().frame_len();
+                let mut all = Vec::with_capacity(job.frames * fl);
+                for _ in 0..job.frames {
+                    all.extend(job.next()?);
+                }
+                let vocab = model.vocabulary();
+                let mut m = vocab.decode_motion(&all, "generated")?;
+                m.labels = job.labels.clone();
+                let secs = t0.elapsed().as_secs_f64();
+                let report = GenerateReport {
+                    frames: job.frames,
+                    seconds: secs,
+                    real_time_factor: job.frames as f64 / vocab.fps / secs.max(1e-9),
+                    exemplar: job.exemplar.clone(),
+                    chosen: job.steered(),
+                };
+                return Ok((m, report));
+            }
             let (labels, n) = (job.labels.clone(), 1 + job.others.len() as u32);
             let choice = crate::lm::best_of::best_of(&model, &labels, n, |i| {
                 if i > 0 {
                     let mut s = job.sampling.clone();
                     s.seed = crate::lm::best_of::candidate_seed(s.seed, i);
-                    job.gen = model.generator(&labels, &job.others[i - 1].0, s)?;
+                    job.gen = Run::Plain(model.generator(&labels, &job.others[i - 1].0, s)?);
                 }
                 let mut all = Vec::with_capacity(job.frames * model.vocabulary().frame_len());
                 for _ in 0..job.frames {
@@ -286,6 +358,7 @@ pub async fn generate(
                     candidates: choice.candidates,
                     index: choice.index,
                     label_probability: choice.log_prob.exp(),
+                    rank_every: 0,
                 }),
             };
             Ok((m, report))
@@ -326,11 +399,11 @@ pub async fn generate_stream(
     p: GenerateParams,
     who: &auth::Principal,
 ) -> Result<FrameStream, ApiError> {
-    if p.candidates > 1 {
+    if p.candidates > 1 && p.rank_every == 0 {
         return Err(ApiError::invalid(
             "candidates",
             format!(
-                "{}: a stream sends each frame as it is made, so it cannot choose among whole clips (want 1, or use the one-shot generate)",
+                "{}: a stream sends each frame as it is made, so it cannot choose among whole clips (want 1, steer with rank_every, or use the one-shot generate)",
                 p.candidates
             ),
         ));

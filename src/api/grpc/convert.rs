@@ -129,6 +129,7 @@ pub(super) fn generate_params(
         sampling: sampling(r.sampling),
         exemplar: r.exemplar,
         candidates: r.candidates,
+        rank_every: r.rank_every,
     })
 }
 

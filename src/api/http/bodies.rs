@@ -237,9 +237,14 @@ pub struct GenerateBody {
     /// `auto` (the default) or `none`.
     #[serde(default)]
     pub exemplar: String,
-    /// Best of N (one-shot only; absent = 1).
+    /// Best of N (one-shot only; absent = 1), or with `rank_every`
+    /// candidates per steering round.
     #[serde(default)]
     pub candidates: u32,
+    /// Steering: rank continuations of this many frames as the motion is
+    /// made (absent or 0 = rank whole clips).
+    #[serde(default)]
+    pub rank_every: u32,
 }
 
 impl GenerateBody {
@@ -257,6 +262,7 @@ impl GenerateBody {
             sampling: self.sampling.to_sampling(),
             exemplar: self.exemplar,
             candidates: self.candidates,
+            rank_every: self.rank_every,
         })
     }
 }

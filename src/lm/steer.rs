@@ -1,0 +1,192 @@
+//! Steering by the class heads as the motion is made: every `every`
+//! frames, `candidates` continuations are drawn from the same point, and
+//! the one whose frames so far the model's class heads find likeliest to
+//! carry the asked-for labels is kept; the next round starts from it.
+//!
+//! Best of N ([`super::best_of`]) ranks whole clips, so its selection
+//! pressure is one choice per clip and it cannot stream. Ranking short
+//! continuations makes a choice every `every` frames, frames leave in
+//! chunks, and the heads read for free: each global step already gives
+//! the frame's class logits (the runtime's `classify` averages those). Every
+//! kept frame is still an ordinary sample of the sampling setting; only
+//! which samples survive changes. It costs `candidates` times the
+//! generation's work.
+
+use super::best_of::{candidate_seed, MAX_CANDIDATES};
+use super::frame::FrameConfig;
+use super::frame_generator::FrameGenerator;
+use super::LmError;
+use crate::motion::Labels;
+use std::collections::VecDeque;
+
+/// Longest continuation ranked at once, in frames.
+pub const MAX_EVERY: usize = 200;
+
+/// A generation steered by the class heads (frame model only).
+pub struct Steered {
+    gen: FrameGenerator,
+    /// (kind index, value index) of each asked-for label the heads read.
+    want: Vec<(usize, usize)>,
+    candidates: usize,
+    every: usize,
+    seed: u64,
+    round: u64,
+    /// Frames of the kept continuation not yet handed out.
+    ready: VecDeque<Vec<u32>>,
+    pub produced: usize,
+    /// The kept continuation's rank score after the latest round: Σ over
+    /// the asked-for labels of the log-probability the heads give the
+    /// frames so far.
+    pub log_prob: f64,
+    kept: usize,
+}
+
+/// The asked-for labels as (kind, value) indices of the config's class
+/// heads; an error when none has a head, or a count or span out of range.
+pub fn wanted(
+    c: &FrameConfig,
+    labels: &Labels,
+    candidates: u32,
+    every: usize,
+) -> Result<Vec<(usize, usize)>, LmError> {
+    if candidates < 2 || candidates > MAX_CANDIDATES {
+        return Err(LmError::invalid(
+            "request",
+            "candidates",
+            format!("{candidates} (steering ranks 2 to {MAX_CANDIDATES})"),
+        ));
+    }
+    if every == 0 || every > MAX_EVERY {
+        return Err(LmError::invalid(
+            "request",
+            "rank_every",
+            format!("{every} (want 1 to {MAX_EVERY} frames; 0 ranks whole clips)"),
+        ));
+    }
+    let want: Vec<(usize, usize)> = c
+        .classes
+        .iter()
+        .enumerate()
+        .filter_map(|(k, (kind, values))| {
+            let v = labels.get(kind)?;
+            values.iter().position(|x| x == v).map(|i| (k, i))
+        })
+        .collect();
+    if want.is_empty() {
+        return Err(LmError::invalid(
+            "request",
+            "rank_every",
+            format!(
+                "steering ranks by the model's class heads, and none of the asked-for labels has one (the model classifies: {})",
+                c.classes.iter().map(|(k, _)| k.as_str()).collect::<Vec<_>>().join(", ")
+            ),
+        ));
+    }
+    Ok(want)
+}
+
+/// Σ over `want` of log softmax(mean logits)[value], from per-kind logit
+/// sums over `frames` frames.
+pub fn score(sums: &[Vec<f64>], frames: usize, want: &[(usize, usize)]) -> f64 {
+    let n = frames.max(1) as f64;
+    want.iter()
+        .map(|&(k, i)| {
+            let l: Vec<f64> = sums[k].iter().map(|x| x / n).collect();
+            let m = l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            let z: f64 = l.iter().map(|x| (x - m).exp()).sum();
+            l[i] - m - z.ln()
+        })
+        .sum()
+}
+
+impl Steered {
+    /// Steers `gen` (fresh: nothing produced yet) toward `labels`.
+    pub fn new(
+        gen: FrameGenerator,
+        labels: &Labels,
+        candidates: u32,
+        every: usize,
+        seed: u64,
+    ) -> Result<Steered, LmError> {
+        let want = wanted(gen.config(), labels, candidates, every)?;
+        Ok(Steered {
+            gen,
+            want,
+            candidates: candidates as usize,
+            every,
+            seed,
+            round: 0,
+            ready: VecDeque::new(),
+            produced: 0,
+            log_prob: 0.0,
+            kept: 0,
+        })
+    }
+
+    pub fn candidates(&self) -> usize {
+        self.candidates
+    }
+
+    /// The candidate kept in the latest round.
+    pub fn kept(&self) -> usize {
+        self.kept
+    }
+
+    /// The next frame's tokens (separator last); `forced_at(f)` gives frame
+    /// `f`'s forced slots (a joint prompt), asked ahead of time for the
+    /// frames of a round.
+    pub fn next_frame(
+        &mut self,
+        forced_at: &dyn Fn(usize) -> Vec<Option<u32>>,
+    ) -> Result<Vec<u32>, LmError> {
+        if self.ready.is_empty() {
+            self.run_round(forced_at)?;
+        }
+        let f = self.ready.pop_front().expect("a round makes frames");
+        self.produced += 1;
+        Ok(f)
+    }
+
+    fn run_round(&mut self, forced_at: &dyn Fn(usize) -> Vec<Option<u32>>) -> Result<(), LmError> {
+        let base = self.gen.produced;
+        let mut best: Option<(f64, usize, FrameGenerator, Vec<Vec<u32>>)> = None;
+        for i in 0..self.candidates {
+            // Seeds differ per round and per candidate, far apart.
+            let seed = candidate_seed(
+                self.seed.wrapping_add(self.round.wrapping_mul(0x9E37_79B9)),
+                i,
+            );
+            let mut g = self.gen.fork(seed)?;
+            let mut frames = Vec::with_capacity(self.every);
+            for j in 0..self.every {
+                frames.push(g.next_frame(&forced_at(base + j))?);
+            }
+            let s = score(g.class_logit_sums(), g.produced, &self.want);
+            if best.as_ref().is_none_or(|b| s > b.0) {
+                best = Some((s, i, g, frames));
+            }
+        }
+        let (s, i, g, frames) = best.expect("at least two candidates");
+        self.log_prob = s;
+        self.kept = i;
+        self.gen = g;
+        self.ready = frames.into();
+        self.round += 1;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn score_is_the_log_softmax_of_the_mean_logits() {
+        let sums = vec![vec![2.0, 4.0, 0.0], vec![1.0, 1.0]];
+        // Mean logits [1, 2, 0] over 2 frames: log softmax at index 1.
+        let z = (1f64.exp() + 2f64.exp() + 1.0).ln();
+        let want = 2.0 - z;
+        assert!((super::score(&sums, 2, &[(0, 1)]) - want).abs() < 1e-12);
+        // Kinds add; an even split gives ln 1/2.
+        let both = super::score(&sums, 2, &[(0, 1), (1, 0)]);
+        assert!((both - (want + 0.5f64.ln())).abs() < 1e-12);
+    }
+}
