@@ -881,11 +881,12 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         // The prompt request, the top_p 0, keep_near and max_jump ones; the
         // 400s: the bad exemplar, keep_near 65, max_jump 181, the bad label
         // and the over-long request; over gRPC the prompt request, best of
-        // 3, exemplar none, top_p 0, keep_near 1 and max_jump 2, and a
-        // stream asking for 2 candidates refused.
+        // 3, steered, exemplar none, top_p 0, keep_near 1 and max_jump 2;
+        // a steered stream, and a stream asking for 2 candidates refused.
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 4",
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 5",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 6",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 7",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 2",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
     ] {
