@@ -10,7 +10,9 @@
 //! the frame's class logits (the runtime's `classify` averages those). Every
 //! kept frame is still an ordinary sample of the sampling setting; only
 //! which samples survive changes. It costs `candidates` times the
-//! generation's work.
+//! generation's work. A continuation much rougher than the round's
+//! median ([`ROUGH_LIMIT`]) is not ranked: the heads can prefer a sample
+//! that has started to jitter.
 
 use super::best_of::{candidate_seed, MAX_CANDIDATES};
 use super::frame::FrameConfig;
@@ -21,6 +23,12 @@ use std::collections::VecDeque;
 
 /// Longest continuation ranked at once, in frames.
 pub const MAX_EVERY: usize = 200;
+
+/// A continuation whose roughness (see [`roughness`]) passes this many
+/// times the round's median is not ranked: now and then a sample starts
+/// to jitter, and the class heads can like what a jitter does to the pose
+/// statistics.
+pub const ROUGH_LIMIT: f64 = 2.0;
 
 /// A generation steered by the class heads (frame model only).
 pub struct Steered {
@@ -99,6 +107,47 @@ pub fn score(sums: &[Vec<f64>], frames: usize, want: &[(usize, usize)]) -> f64 {
         .sum()
 }
 
+/// Mean absolute second difference of the slots' bins (the shorter way
+/// round) over a continuation's frames (value tokens first, `slots` of
+/// them; 0 under three frames): its acceleration in bins per frame².
+pub fn roughness(frames: &[Vec<u32>], slots: usize, bins: usize) -> f64 {
+    let d = |a: u32, b: u32| -> i64 {
+        let x = (a as i64 - b as i64).rem_euclid(bins as i64);
+        if 2 * x > bins as i64 {
+            x - bins as i64
+        } else {
+            x
+        }
+    };
+    let (mut sum, mut n) = (0.0, 0usize);
+    for w in frames.windows(3) {
+        for s in 0..slots {
+            sum += (d(w[2][s], w[1][s]) - d(w[1][s], w[0][s])).abs() as f64;
+            n += 1;
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        sum / n as f64
+    }
+}
+
+/// The candidate to keep: the best score among those whose roughness is
+/// at most [`ROUGH_LIMIT`] times the median's (the first on ties).
+pub fn keep(scores: &[f64], rough: &[f64]) -> usize {
+    let mut sorted = rough.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[(sorted.len() - 1) / 2];
+    let mut best: Option<usize> = None;
+    for (i, (&s, &r)) in scores.iter().zip(rough).enumerate() {
+        if r <= ROUGH_LIMIT * median && best.is_none_or(|b| s > scores[b]) {
+            best = Some(i);
+        }
+    }
+    best.unwrap_or(0)
+}
+
 impl Steered {
     /// Steers `gen` (fresh: nothing produced yet) toward `labels`.
     pub fn new(
@@ -149,7 +198,8 @@ impl Steered {
 
     fn run_round(&mut self, forced_at: &dyn Fn(usize) -> Vec<Option<u32>>) -> Result<(), LmError> {
         let base = self.gen.produced;
-        let mut best: Option<(f64, usize, FrameGenerator, Vec<Vec<u32>>)> = None;
+        let (slots, bins) = (self.gen.config().slots, self.gen.config().bins);
+        let mut made: Vec<(f64, f64, FrameGenerator, Vec<Vec<u32>>)> = Vec::new();
         for i in 0..self.candidates {
             // Seeds differ per round and per candidate, far apart.
             let seed = candidate_seed(
@@ -162,11 +212,12 @@ impl Steered {
                 frames.push(g.next_frame(&forced_at(base + j))?);
             }
             let s = score(g.class_logit_sums(), g.produced, &self.want);
-            if best.as_ref().is_none_or(|b| s > b.0) {
-                best = Some((s, i, g, frames));
-            }
+            made.push((s, roughness(&frames, slots, bins), g, frames));
         }
-        let (s, i, g, frames) = best.expect("at least two candidates");
+        let scores: Vec<f64> = made.iter().map(|m| m.0).collect();
+        let rough: Vec<f64> = made.iter().map(|m| m.1).collect();
+        let i = keep(&scores, &rough);
+        let (s, _, g, frames) = made.swap_remove(i);
         self.log_prob = s;
         self.kept = i;
         self.gen = g;
@@ -178,6 +229,27 @@ impl Steered {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn roughness_is_the_mean_second_difference_the_short_way_round() {
+        // One slot of 10 bins: 8 → 9 → 0 (+1, +1 across the wrap): 0;
+        // 0 → 3: +3 after +1 gives 2.
+        let f = |b: u32| vec![b, 5];
+        let frames = vec![f(8), f(9), f(0), f(3)];
+        assert!((super::roughness(&frames, 2, 10) - 0.5).abs() < 1e-12);
+        assert_eq!(super::roughness(&frames[..2], 2, 10), 0.0);
+    }
+
+    #[test]
+    fn keep_ranks_only_the_smooth_enough() {
+        // The best score is a jitter (roughness 9 against a median of 1).
+        assert_eq!(
+            super::keep(&[0.5, -1.0, -0.2, -3.0], &[9.0, 1.0, 1.1, 0.9]),
+            2
+        );
+        // Without an outlier the best score wins.
+        assert_eq!(super::keep(&[0.5, -1.0, -0.2], &[1.2, 1.0, 1.1]), 0);
+    }
+
     #[test]
     fn score_is_the_log_softmax_of_the_mean_logits() {
         let sums = vec![vec![2.0, 4.0, 0.0], vec![1.0, 1.0]];

@@ -268,6 +268,16 @@ try {
   const [dlg] = await Promise.all([page.waitForEvent("download"), page.click("#g-save")]);
   const gen = JSON.parse(readFileSync(await dlg.path(), "utf8"));
   check(gen.rotations.length === results.generate_frames, "the downloaded motion lacks frames");
+  // Steered toward the label (4 continuations every 20 frames, over the
+  // same WebSocket): as many frames come, a round at a time.
+  if (firstLabel) {
+    await page.check("#g-steer");
+    await page.click("#g-go");
+    await page.waitForSelector("#g-status .ok", { timeout: 120000 });
+    results.generate_steered_frames = await page.evaluate(() => window.__studio.streamed);
+    check(results.generate_steered_frames >= 79, `steered: ${results.generate_steered_frames} frames of 80`);
+    await page.uncheck("#g-steer");
+  }
   noErrors(page);
   await shot(page, "generate");
 

@@ -361,6 +361,8 @@ async function generatePage() {
     <h3>Labels</h3>${labelSelects(m, "g")}
     <div class="row"><label for="g-seconds">seconds</label><input id="g-seconds" type="number" min="0.5" max="${m.max_frames / m.fps}" step="0.5" value="10"></div>
     ${samplingFields("g")}
+    <div class="row"><label for="g-steer">steer to the labels</label><input id="g-steer" type="checkbox">
+      <span class="note">every 20 frames, 4 continuations; the model's class heads keep the likeliest (4× the work)</span></div>
     <h3>Prompt joints</h3>
     <div class="row"><label for="g-prompt">from</label><select id="g-prompt"><option value="">no prompt</option>${motionOptions()}</select></div>
     ${jointBoxes(m, "g")}
@@ -378,6 +380,10 @@ async function generate() {
   const clicked = performance.now();
   const frames = Math.round(Number($("#g-seconds").value) * m.fps);
   const body = { labels: chosenLabels("g"), frames, sampling: chosenSampling("g") };
+  if ($("#g-steer").checked) {
+    body.candidates = 4;
+    body.rank_every = 20;
+  }
   const promptId = $("#g-prompt").value;
   const joints = chosenJoints("g");
   let prompt = null;
