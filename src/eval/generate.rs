@@ -42,6 +42,9 @@ pub struct GenRow {
     pub sampling: String,
     /// Samples each clip was chosen from (best of N; 1 = plain sampling).
     pub candidates: u32,
+    /// With more than one candidate: continuations of this many frames
+    /// were ranked as each clip was made (steering); 0 = whole clips.
+    pub rank_every: usize,
     pub labels: usize,
     pub clips: usize,
     pub fid_k: Option<f64>,
@@ -554,6 +557,7 @@ pub fn eval_generate(
                 }
             ),
             candidates,
+            rank_every: if candidates > 1 { o.rank_every } else { 0 },
             labels: values.len(),
             clips: gen.len(),
             fid_k: fid(&rk, &gk),
