@@ -309,42 +309,37 @@ pub async fn generate(
         .heavy("generate", move || {
             let t0 = Instant::now();
             let model = job.session.clone();
-            if matches!(job.gen, Run::Steered(..)) {
-                let fl = model.vocabulary().frame_len();
-                let mut all = Vec::with_capacity(job.frames * fl);
-                for _ in 0..job.frames {
-                    all.extend(job.next()?);
-                }
-                let vocab = model.vocabulary();
-                let mut m = vocab.decode_motion(&all, "generated")?;
-                m.labels = job.labels.clone();
-                let secs = t0.elapsed().as_secs_f64();
-                let report = GenerateReport {
-                    frames: job.frames,
-                    seconds: secs,
-                    real_time_factor: job.frames as f64 / vocab.fps / secs.max(1e-9),
-                    exemplar: job.exemplar.clone(),
-                    chosen: job.steered(),
-                };
-                return Ok((m, report));
-            }
-            let (labels, n) = (job.labels.clone(), 1 + job.others.len() as u32);
-            let choice = crate::lm::best_of::best_of(&model, &labels, n, |i| {
-                if i > 0 {
-                    let mut s = job.sampling.clone();
-                    s.seed = crate::lm::best_of::candidate_seed(s.seed, i);
-                    job.gen = Run::Plain(model.generator(&labels, &job.others[i - 1].0, s)?);
-                }
+            let (all, chosen) = if matches!(job.gen, Run::Steered(..)) {
                 let mut all = Vec::with_capacity(job.frames * model.vocabulary().frame_len());
                 for _ in 0..job.frames {
                     all.extend(job.next()?);
                 }
-                Ok(all)
-            })?;
-            let all = choice.tokens;
-            if choice.index > 0 {
-                job.exemplar = job.others[choice.index - 1].1.clone();
-            }
+                (all, job.steered())
+            } else {
+                let (labels, n) = (job.labels.clone(), 1 + job.others.len() as u32);
+                let choice = crate::lm::best_of::best_of(&model, &labels, n, |i| {
+                    if i > 0 {
+                        let mut s = job.sampling.clone();
+                        s.seed = crate::lm::best_of::candidate_seed(s.seed, i);
+                        job.gen = Run::Plain(model.generator(&labels, &job.others[i - 1].0, s)?);
+                    }
+                    let mut all = Vec::with_capacity(job.frames * model.vocabulary().frame_len());
+                    for _ in 0..job.frames {
+                        all.extend(job.next()?);
+                    }
+                    Ok(all)
+                })?;
+                if choice.index > 0 {
+                    job.exemplar = job.others[choice.index - 1].1.clone();
+                }
+                let chosen = (choice.candidates > 1).then(|| ChosenCandidate {
+                    candidates: choice.candidates,
+                    index: choice.index,
+                    label_probability: choice.log_prob.exp(),
+                    rank_every: 0,
+                });
+                (choice.tokens, chosen)
+            };
             let vocab = job.session.vocabulary();
             let mut m = vocab.decode_motion(&all, "generated")?;
             m.labels = job.labels.clone();
@@ -354,12 +349,7 @@ pub async fn generate(
                 seconds: secs,
                 real_time_factor: job.frames as f64 / vocab.fps / secs.max(1e-9),
                 exemplar: job.exemplar.clone(),
-                chosen: (choice.candidates > 1).then(|| ChosenCandidate {
-                    candidates: choice.candidates,
-                    index: choice.index,
-                    label_probability: choice.log_prob.exp(),
-                    rank_every: 0,
-                }),
+                chosen,
             };
             Ok((m, report))
         })
