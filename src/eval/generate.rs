@@ -492,39 +492,39 @@ pub fn eval_generate(
                 let mut s = sampling.clone();
                 s.seed = sampling.seed.wrapping_add(i as u64);
                 let free = vec![None; fl];
-                if candidates > 1 && o.rank_every > 0 {
-                    let seed: &[u32] = match (&o.exemplars, with_exemplar) {
-                        (Some(ex), true) => ex.pick(&labels, s.seed).map_or(&[][..], |p| p.1),
+                // The exemplar a sampling seed picks, as the API does.
+                let context = |seed: u64| -> &[u32] {
+                    match (&o.exemplars, with_exemplar) {
+                        (Some(ex), true) => ex.pick(&labels, seed).map_or(&[][..], |p| p.1),
                         _ => &[],
-                    };
-                    let mut g =
-                        model.steered(&labels, seed, s.clone(), (candidates, o.rank_every))?;
+                    }
+                };
+                let toks = if candidates > 1 && o.rank_every > 0 {
+                    let mut g = model.steered(
+                        &labels,
+                        context(s.seed),
+                        s.clone(),
+                        (candidates, o.rank_every),
+                    )?;
                     let mut toks = Vec::with_capacity(seg * fl);
                     for _ in 0..seg {
                         toks.extend(g.next_frame(&|_| free.clone())?);
                     }
-                    gen.push((
-                        v.clone(),
-                        clip_stats(&vocab, &toks, in_place).map_err(|e| anyhow::anyhow!("{e}"))?,
-                    ));
-                    continue;
-                }
-                let toks = crate::lm::best_of::best_of(model, &labels, candidates, |j| {
-                    let mut sj = s.clone();
-                    sj.seed = crate::lm::best_of::candidate_seed(s.seed, j);
-                    // Each candidate picks its exemplar with its own seed, as the API does.
-                    let seed: &[u32] = match (&o.exemplars, with_exemplar) {
-                        (Some(ex), true) => ex.pick(&labels, sj.seed).map_or(&[][..], |p| p.1),
-                        _ => &[],
-                    };
-                    let mut g = model.generator(&labels, seed, sj)?;
-                    let mut toks = Vec::with_capacity(seg * fl);
-                    for _ in 0..seg {
-                        toks.extend(g.next_frame(&free)?);
-                    }
-                    Ok(toks)
-                })?
-                .tokens;
+                    toks
+                } else {
+                    crate::lm::best_of::best_of(model, &labels, candidates, |j| {
+                        let mut sj = s.clone();
+                        sj.seed = crate::lm::best_of::candidate_seed(s.seed, j);
+                        // Each candidate picks its exemplar with its own seed.
+                        let mut g = model.generator(&labels, context(sj.seed), sj)?;
+                        let mut toks = Vec::with_capacity(seg * fl);
+                        for _ in 0..seg {
+                            toks.extend(g.next_frame(&free)?);
+                        }
+                        Ok(toks)
+                    })?
+                    .tokens
+                };
                 gen.push((
                     v.clone(),
                     clip_stats(&vocab, &toks, in_place).map_err(|e| anyhow::anyhow!("{e}"))?,

@@ -41,7 +41,6 @@ pub struct Steered {
     round: u64,
     /// Frames of the kept continuation not yet handed out.
     ready: VecDeque<Vec<u32>>,
-    pub produced: usize,
     /// The kept continuation's rank score after the latest round: Σ over
     /// the asked-for labels of the log-probability the heads give the
     /// frames so far.
@@ -166,7 +165,6 @@ impl Steered {
             seed,
             round: 0,
             ready: VecDeque::new(),
-            produced: 0,
             log_prob: 0.0,
             kept: 0,
         })
@@ -174,6 +172,11 @@ impl Steered {
 
     pub fn candidates(&self) -> usize {
         self.candidates
+    }
+
+    /// Frames per round.
+    pub fn every(&self) -> usize {
+        self.every
     }
 
     /// The candidate kept in the latest round.
@@ -191,9 +194,7 @@ impl Steered {
         if self.ready.is_empty() {
             self.run_round(forced_at)?;
         }
-        let f = self.ready.pop_front().expect("a round makes frames");
-        self.produced += 1;
-        Ok(f)
+        Ok(self.ready.pop_front().expect("a round makes frames"))
     }
 
     fn run_round(&mut self, forced_at: &dyn Fn(usize) -> Vec<Option<u32>>) -> Result<(), LmError> {

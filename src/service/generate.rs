@@ -95,7 +95,7 @@ pub struct GenerateJob {
 /// `rank_every` frames.
 enum Run {
     Plain(MotionGenerator),
-    Steered(crate::lm::steer::Steered, u32),
+    Steered(crate::lm::steer::Steered),
 }
 
 impl GenerateJob {
@@ -105,7 +105,7 @@ impl GenerateJob {
         let forced = &self.forced;
         let forced_at = |f: usize| forced.get(f).cloned().unwrap_or_else(|| vec![None; fl]);
         match &mut self.gen {
-            Run::Steered(g, _) => g.next_frame(&forced_at),
+            Run::Steered(g) => g.next_frame(&forced_at),
             Run::Plain(g) => g.next_frame(&forced_at(g.produced())),
         }
     }
@@ -113,11 +113,11 @@ impl GenerateJob {
     /// What steering kept, once frames are made.
     fn steered(&self) -> Option<ChosenCandidate> {
         match &self.gen {
-            Run::Steered(g, every) => Some(ChosenCandidate {
+            Run::Steered(g) => Some(ChosenCandidate {
                 candidates: g.candidates(),
                 index: g.kept(),
                 label_probability: g.log_prob.exp(),
-                rank_every: *every,
+                rank_every: g.every() as u32,
             }),
             Run::Plain(_) => None,
         }
@@ -200,21 +200,13 @@ pub async fn generate_job(
             ),
         ));
     }
-    if p.rank_every > 0 && candidates < 2 {
-        return Err(ApiError::invalid(
-            "candidates",
-            format!(
-                "{candidates}: steering (rank_every {}) ranks 2 to {} continuations a round",
-                p.rank_every,
-                crate::lm::best_of::MAX_CANDIDATES
-            ),
-        ));
-    }
+    // Steering refuses one candidate, a round past its limit and labels
+    // without a class head (`lm::steer::wanted`).
     if p.rank_every > 0 {
         let every = p.rank_every as usize;
         let steer = session.steered(&p.labels, &seed, p.sampling.clone(), (candidates, every))?;
         return Ok(GenerateJob {
-            gen: Run::Steered(steer, p.rank_every),
+            gen: Run::Steered(steer),
             session,
             forced,
             frames,
