@@ -394,3 +394,68 @@ fn the_split_ignores_the_path_spelling_and_exemplars_are_never_held_out() {
         assert!(used > 0, "{corpus}: no exemplar from its training side");
     }
 }
+
+/// The root's path rebuilt from the feet (what `root: "feet"` does to a
+/// generated clip) recovers a real walk's travel from its legs alone: the
+/// Bandai takes retargeted to SMPL-13, tokenized and decoded as the model
+/// sees them, their root's ground path thrown away.
+#[test]
+fn the_feet_recover_real_travel() {
+    use choreo::motion::contact::lock_feet;
+    use choreo::tokenize::vocab::Vocabulary;
+    let Some(dir) = require("bandai/dataset-1") else {
+        return;
+    };
+    let v = Vocabulary::new(Default::default());
+    let path_len = |m: &Motion| -> f64 {
+        m.trans
+            .windows(2)
+            .map(|w| ((w[1][0] - w[0][0]).powi(2) + (w[1][2] - w[0][2]).powi(2)).sqrt())
+            .sum()
+    };
+    let end = |m: &Motion| -> [f64; 2] {
+        let (a, b) = (m.trans[0], m.trans[m.frames() - 1]);
+        [b[0] - a[0], b[2] - a[2]]
+    };
+    let mut report = Vec::new();
+    for name in [
+        "dataset-1_walk_happy_001",
+        "dataset-1_walk_normal_001",
+        "dataset-1_walk-back_normal_001",
+        "dataset-1_run_normal_001",
+        "dataset-1_bow_active_001",
+    ] {
+        let p = dir.join(format!("{name}.bvh"));
+        let src = retargeted(&p);
+        let tokens = v.encode_motion(&v.prepare(&src).unwrap()).unwrap();
+        let real = v.decode_motion(&tokens, name).unwrap();
+        let mut still = real.clone();
+        for t in &mut still.trans {
+            (t[0], t[2]) = (0.0, 0.0);
+        }
+        let feet = lock_feet(&still);
+        let (lr, lf) = (path_len(&real), path_len(&feet));
+        let (er, ef) = (end(&real), end(&feet));
+        let miss = ((er[0] - ef[0]).powi(2) + (er[1] - ef[1]).powi(2)).sqrt();
+        let dist = (er[0].powi(2) + er[1].powi(2)).sqrt();
+        report.push(format!(
+            "{name}: real path {lr:.2} m (ends {dist:.2} m away), feet path {lf:.2} m, ends {miss:.2} m apart"
+        ));
+        let all = report.join("\n");
+        if name.contains("bow") {
+            // Standing: no travel made up.
+            assert!(lf < 0.75 && (ef[0].hypot(ef[1])) < 0.2, "{all}");
+        } else if name.contains("run") {
+            // A run's flight phases carry no foot: with the root's own path
+            // thrown away, part of the travel is lost, but not its sense.
+            let along = (er[0] * ef[0] + er[1] * ef[1]) / dist;
+            assert!(along > 0.3 * dist && miss < dist, "{all}");
+        } else {
+            // A walk always has a foot down: the travel comes back within
+            // 30 % (SMPL-13's legs are not the actor's).
+            assert!((lf / lr - 1.0).abs() < 0.3, "{all}");
+            assert!(miss < 0.3 * dist, "{all}");
+        }
+    }
+    println!("{}", report.join("\n"));
+}

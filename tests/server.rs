@@ -554,6 +554,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         exemplar: String::new(),
         candidates: 0,
         rank_every: 0,
+        root: String::new(),
     };
     let one = client.generate(greq.clone()).await.unwrap().into_inner();
     assert!(one.chosen.is_none(), "one candidate: nothing chosen");
@@ -630,6 +631,59 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         .expect("refused");
         assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
         assert!(e.message().contains("candidates"), "{}", e.message());
+    }
+    // The root's path from the feet: same joint angles as the model's own
+    // path, another ground path; one-shot and stream agree frame by frame.
+    let free = pb::GenerateRequest {
+        prompt: None,
+        prompt_joints: vec![],
+        frames: 40,
+        ..greq.clone()
+    };
+    let carried = client.generate(free.clone()).await.unwrap().into_inner();
+    let feet_req = pb::GenerateRequest {
+        root: "feet".into(),
+        ..free.clone()
+    };
+    let feet = client
+        .generate(feet_req.clone())
+        .await
+        .unwrap()
+        .into_inner();
+    let (fm, cm) = (feet.output.unwrap(), carried.output.unwrap());
+    assert_eq!(fm.rotations, cm.rotations);
+    assert_ne!(fm.translation, cm.translation);
+    // Heights are the model's own.
+    for (a, b) in fm.translation.chunks(3).zip(cm.translation.chunks(3)) {
+        assert_eq!(a[1], b[1]);
+    }
+    let mut st = client.generate_stream(feet_req).await.unwrap().into_inner();
+    let mut strans = Vec::new();
+    while let Some(f) = st.message().await.unwrap() {
+        strans.extend(f.translation);
+    }
+    assert_eq!(strans.len(), fm.translation.len());
+    let worst = strans
+        .iter()
+        .zip(&fm.translation)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        worst < 1e-9,
+        "stream and one-shot feet paths differ by {worst}"
+    );
+    // Refused, naming root: an unknown value; feet with a prompt that fixes
+    // the root's path (pelvis is among the prompt's joints).
+    for r in ["wings", "feet"] {
+        let e = client
+            .generate(pb::GenerateRequest {
+                root: r.into(),
+                ..greq.clone()
+            })
+            .await
+            .expect_err("refused");
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+        assert!(e.message().contains("root"), "{}", e.message());
     }
     // The bundled model has style exemplars: labels and no seed motion start
     // from a real breaking (BR) span, the same one on both transports.
@@ -881,12 +935,13 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         // The prompt request, the top_p 0, keep_near and max_jump ones; the
         // 400s: the bad exemplar, keep_near 65, max_jump 181, the bad label
         // and the over-long request; over gRPC the prompt request, best of
-        // 3, steered, exemplar none, top_p 0, keep_near 1 and max_jump 2;
-        // a steered stream, and a stream asking for 2 candidates refused.
+        // 3, steered, root model and feet, exemplar none, top_p 0, keep_near
+        // 1 and max_jump 2; a steered stream, a feet stream, and a stream
+        // asking for 2 candidates refused.
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 4",
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 5",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 7",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 2",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 9",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 3",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
     ] {

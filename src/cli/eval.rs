@@ -46,6 +46,11 @@ pub enum EvalCmd {
         /// request's `rank_every` does); 0 ranks whole clips.
         #[arg(long, default_value_t = 0)]
         rank_every: usize,
+        /// The generated root's ground path: as the model's tokens carry it
+        /// (`carried`), rebuilt from foot contact (`feet`, what a request's
+        /// `root: "feet"` does), or `both` rows from the same clips.
+        #[arg(long, default_value = "carried")]
+        root: String,
         /// The first clip's sampling seed (clip i of a label uses seed + i):
         /// another seed draws another set of clips, to see how far a row
         /// moves with the draw.
@@ -187,6 +192,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             exemplar,
             candidates,
             rank_every,
+            root,
             seed,
             json,
         } => super::eval_generate::run(
@@ -196,6 +202,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             (per_label, seconds),
             (&sampling, seed),
             (&exemplar, &candidates, rank_every),
+            &root,
             json,
         ),
         EvalCmd::Keyframes {

@@ -56,6 +56,7 @@ pub fn run(
     (per_label, seconds): (usize, f64),
     (samplings, seed): (&[String], u64),
     (exemplar, candidates, rank_every): (&str, &[u32], usize),
+    root: &str,
     json: bool,
 ) -> Result<()> {
     if per_label == 0 {
@@ -64,6 +65,12 @@ pub fn run(
     if !(seconds > 0.0 && seconds <= 120.0) {
         bail!("--seconds: {seconds} (want 0 < s ≤ 120)");
     }
+    let root_from_feet = match root {
+        "carried" => vec![false],
+        "feet" => vec![true],
+        "both" => vec![false, true],
+        o => bail!("--root: '{o}' is not carried, feet or both"),
+    };
     let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
     let samplings = samplings
         .iter()
@@ -91,6 +98,7 @@ pub fn run(
         exemplars,
         candidates: candidates.to_vec(),
         rank_every,
+        root_from_feet,
     };
     let rows = eval_generate(&m, data, &o, &mut |line| eprintln!("{line}"))?;
     if json {

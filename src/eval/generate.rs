@@ -87,6 +87,11 @@ pub struct GenOptions {
     /// With more than one candidate: rank continuations of this many
     /// frames as the clip is made ([`crate::lm::steer`]); 0 ranks whole clips.
     pub rank_every: usize,
+    /// How each generated clip's root travels, one row per entry: `false`
+    /// as its tokens carry it, `true` rebuilt from its feet
+    /// ([`crate::motion::contact`]). Ignored (one row) where the real clips
+    /// have no root trajectory.
+    pub root_from_feet: Vec<bool>,
 }
 
 /// A sampling setting as a row names it.
@@ -156,11 +161,19 @@ const JUDGE_FRAMES: usize = 40;
 /// `in_place`: the root's ground-plane path is dropped (x and z held at
 /// 0), for a corpus whose real clips dance in place (no root trajectory):
 /// the generated travel then has nothing real to be compared with.
-fn clip_stats(vocab: &Vocabulary, tokens: &[u32], in_place: bool) -> Result<ClipStats, String> {
+fn clip_stats(
+    vocab: &Vocabulary,
+    tokens: &[u32],
+    in_place: bool,
+    root_from_feet: bool,
+) -> Result<ClipStats, String> {
     let fl = vocab.frame_len();
     let mut m = vocab
         .decode_motion(tokens, "clip")
         .map_err(|e| e.to_string())?;
+    if root_from_feet {
+        m = crate::motion::contact::lock_feet(&m);
+    }
     if in_place {
         for t in &mut m.trans {
             (t[0], t[2]) = (0.0, 0.0);
@@ -430,7 +443,7 @@ pub fn eval_generate(
         segs.iter()
             .filter(|s| values.contains(&s.0))
             .map(|(v, t)| {
-                clip_stats(&vocab, t, in_place)
+                clip_stats(&vocab, t, in_place, false)
                     .map(|s| (v.clone(), s))
                     .map_err(|e| anyhow::anyhow!("{e}"))
             })
@@ -482,9 +495,14 @@ pub fn eval_generate(
         .flat_map(|s| o.exemplar_modes.iter().map(move |&e| (s, e)))
         .flat_map(|(s, e)| o.candidates.iter().map(move |&n| (s, e, n)))
         .collect();
+    let root_modes: Vec<bool> = if in_place {
+        vec![false]
+    } else {
+        o.root_from_feet.clone()
+    };
     for (sampling, with_exemplar, candidates) in runs {
         let t0 = std::time::Instant::now();
-        let mut gen: Vec<(String, ClipStats)> = Vec::new();
+        let mut made: Vec<(String, Vec<u32>)> = Vec::new();
         for v in &values {
             let mut labels = Labels::new();
             labels.insert(kind.clone(), v.clone());
@@ -525,58 +543,66 @@ pub fn eval_generate(
                     })?
                     .tokens
                 };
-                gen.push((
-                    v.clone(),
-                    clip_stats(&vocab, &toks, in_place).map_err(|e| anyhow::anyhow!("{e}"))?,
-                ));
+                made.push((v.clone(), toks));
             }
         }
-        let secs = t0.elapsed().as_secs_f64() / gen.len().max(1) as f64;
-        let gk: Vec<Vec<f64>> = gen.iter().map(|r| r.1.kinetic.clone()).collect();
-        let gg: Vec<Vec<f64>> = gen.iter().map(|r| r.1.geometric.clone()).collect();
-        let frozen = {
-            let w: Vec<f64> = gen
+        let secs = t0.elapsed().as_secs_f64() / made.len().max(1) as f64;
+        for &feet in &root_modes {
+            let gen: Vec<(String, ClipStats)> = made
                 .iter()
-                .flat_map(|r| r.1.window_speed.iter().copied())
-                .collect();
-            w.iter().filter(|&&s| s < 0.1 * real_speed).count() as f64 / w.len().max(1) as f64
-        };
-        let refs: Vec<(String, &ClipStats)> = gen.iter().map(|(v, s)| (v.clone(), s)).collect();
-        rows.push(GenRow {
-            label_kind: kind.clone(),
-            sampling: format!(
-                "{}{}{}",
-                sampling_name(sampling),
-                if with_exemplar { " +exemplar" } else { "" },
-                if candidates > 1 && o.rank_every > 0 {
-                    format!(" steer-{candidates}-every-{}", o.rank_every)
-                } else if candidates > 1 {
-                    format!(" best-of-{candidates}")
-                } else {
-                    String::new()
-                }
-            ),
-            candidates,
-            rank_every: if candidates > 1 { o.rank_every } else { 0 },
-            labels: values.len(),
-            clips: gen.len(),
-            fid_k: fid(&rk, &gk),
-            fid_g: fid(&rg, &gg),
-            fid_k_real: fid(&rk, &tk),
-            fid_g_real: fid(&rg, &tg),
-            fid_k_range: fid_range(&rk, &gk),
-            fid_g_range: fid_range(&rg, &gg),
-            accel_ratio: mean(gen.iter().map(|r| r.1.accel)) / real_accel.max(1e-12),
-            jerk_ratio: mean(gen.iter().map(|r| r.1.jerk)) / real_jerk.max(1e-12),
-            skate_ratio: mean(gen.iter().map(|r| r.1.skate)) / real_skate.max(1e-12),
-            frozen,
-            diversity: diversity(&gk, &rk),
-            diversity_real: diversity(&rk, &rk),
-            cond_acc: judge_acc(&refs),
-            cond_acc_real,
-            seconds_per_clip: secs,
-            root_in_place: in_place,
-        });
+                .map(|(v, t)| {
+                    clip_stats(&vocab, t, in_place, feet)
+                        .map(|s| (v.clone(), s))
+                        .map_err(|e| anyhow::anyhow!("{e}"))
+                })
+                .collect::<anyhow::Result<_>>()?;
+            let gk: Vec<Vec<f64>> = gen.iter().map(|r| r.1.kinetic.clone()).collect();
+            let gg: Vec<Vec<f64>> = gen.iter().map(|r| r.1.geometric.clone()).collect();
+            let frozen = {
+                let w: Vec<f64> = gen
+                    .iter()
+                    .flat_map(|r| r.1.window_speed.iter().copied())
+                    .collect();
+                w.iter().filter(|&&s| s < 0.1 * real_speed).count() as f64 / w.len().max(1) as f64
+            };
+            let refs: Vec<(String, &ClipStats)> = gen.iter().map(|(v, s)| (v.clone(), s)).collect();
+            rows.push(GenRow {
+                label_kind: kind.clone(),
+                sampling: format!(
+                    "{}{}{}{}",
+                    sampling_name(sampling),
+                    if with_exemplar { " +exemplar" } else { "" },
+                    if candidates > 1 && o.rank_every > 0 {
+                        format!(" steer-{candidates}-every-{}", o.rank_every)
+                    } else if candidates > 1 {
+                        format!(" best-of-{candidates}")
+                    } else {
+                        String::new()
+                    },
+                    if feet { " +root-from-feet" } else { "" }
+                ),
+                candidates,
+                rank_every: if candidates > 1 { o.rank_every } else { 0 },
+                labels: values.len(),
+                clips: gen.len(),
+                fid_k: fid(&rk, &gk),
+                fid_g: fid(&rg, &gg),
+                fid_k_real: fid(&rk, &tk),
+                fid_g_real: fid(&rg, &tg),
+                fid_k_range: fid_range(&rk, &gk),
+                fid_g_range: fid_range(&rg, &gg),
+                accel_ratio: mean(gen.iter().map(|r| r.1.accel)) / real_accel.max(1e-12),
+                jerk_ratio: mean(gen.iter().map(|r| r.1.jerk)) / real_jerk.max(1e-12),
+                skate_ratio: mean(gen.iter().map(|r| r.1.skate)) / real_skate.max(1e-12),
+                frozen,
+                diversity: diversity(&gk, &rk),
+                diversity_real: diversity(&rk, &rk),
+                cond_acc: judge_acc(&refs),
+                cond_acc_real,
+                seconds_per_clip: secs,
+                root_in_place: in_place,
+            });
+        }
     }
     Ok(rows)
 }

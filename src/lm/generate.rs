@@ -460,11 +460,14 @@ impl Generator {
 
 /// Decodes a stream frame by frame exactly as
 /// [`Vocabulary::decode_motion`] decodes the whole: the root's ground
-/// position integrates the velocity slots from the second frame on.
+/// position integrates the velocity slots from the second frame on, or,
+/// [`FrameDecoder::root_from_feet`], is rebuilt from foot contact as
+/// [`crate::motion::contact::lock_feet`] rebuilds a whole clip's.
 pub struct FrameDecoder {
     x: f64,
     z: f64,
     frames: usize,
+    feet: Option<crate::motion::contact::FootLock>,
 }
 
 impl Default for FrameDecoder {
@@ -479,7 +482,16 @@ impl FrameDecoder {
             x: 0.0,
             z: 0.0,
             frames: 0,
+            feet: None,
         }
+    }
+    /// The root's ground path from the feet instead of the velocity slots.
+    pub fn root_from_feet(mut self, vocab: &Vocabulary) -> Result<FrameDecoder, LmError> {
+        let sk = vocab.skeleton_def().ok_or_else(|| {
+            LmError::invalid("model", "vocabulary.skeleton", vocab.skeleton.clone())
+        })?;
+        self.feet = Some(crate::motion::contact::FootLock::new(&sk));
+        Ok(self)
     }
     /// One frame: (rotations per joint, root translation).
     pub fn decode(
@@ -488,10 +500,18 @@ impl FrameDecoder {
         frame: &[u32],
     ) -> Result<(Vec<[f64; 3]>, [f64; 3]), LmError> {
         let one = vocab.decode_motion(frame, "generated")?;
-        if self.frames > 0 {
+        let carried = if self.frames > 0 {
             let (vx, vz) = vocab.decode_root_velocity(frame);
-            self.x += vx / vocab.fps;
-            self.z += vz / vocab.fps;
+            [vx / vocab.fps, vz / vocab.fps]
+        } else {
+            [0.0, 0.0]
+        };
+        match &mut self.feet {
+            Some(lock) => [self.x, self.z] = lock.step(&one.positions(), carried),
+            None => {
+                self.x += carried[0];
+                self.z += carried[1];
+            }
         }
         self.frames += 1;
         let t = one.trans[0];

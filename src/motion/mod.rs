@@ -2,6 +2,7 @@
 //! readers/writers of the formats people have. Pure: no tokio, sqlx or tract.
 
 pub mod clip;
+pub mod contact;
 pub mod io;
 pub mod keypoints;
 pub mod labels;

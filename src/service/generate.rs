@@ -64,6 +64,10 @@ pub struct GenerateParams {
     /// continuations of this many frames as the motion is made and go on
     /// from the best (streams too); 0 = rank whole clips.
     pub rank_every: u32,
+    /// The root's ground path: `model` or empty (as the model's velocity
+    /// tokens carry it) or `feet` (rebuilt from foot contact,
+    /// [`crate::motion::contact`]).
+    pub root: String,
 }
 
 /// The style exemplar a generation started from (context only, not in
@@ -88,6 +92,8 @@ pub struct GenerateJob {
     /// context tokens and exemplar; candidate 0 is `gen` / `exemplar`).
     sampling: Sampling,
     others: Vec<(Vec<u32>, Option<ExemplarUsed>)>,
+    /// The root's ground path rebuilt from the feet.
+    pub root_from_feet: bool,
 }
 
 /// A job's running generation: plain (one clip, or the current
@@ -138,6 +144,16 @@ pub async fn generate_job(
             format!("{}; at most {MAX_GENERATE_FRAMES} per request", p.frames),
         ));
     }
+    let root_from_feet = match p.root.as_str() {
+        "" | "model" => false,
+        "feet" => true,
+        o => {
+            return Err(ApiError::invalid(
+                "root",
+                format!("'{o}' is not model or feet"),
+            ))
+        }
+    };
     let forced = match p.prompt {
         Some(input) => {
             if p.prompt_joints.is_empty() {
@@ -151,6 +167,16 @@ pub async fn generate_job(
             }
             let m = state.resolve("prompt", input, who).await?;
             let slots = prompt_slots(vocab, &p.prompt_joints)?;
+            let root_slot = 3 * vocab.joints.len();
+            if root_from_feet && slots[root_slot] {
+                return Err(ApiError::invalid(
+                    "root",
+                    format!(
+                        "feet: the prompt fixes the root's path ({} is among prompt_joints); ask for root model to keep it",
+                        vocab.joints[0]
+                    ),
+                ));
+            }
             let tokens = vocab.encode_motion(&m)?;
             forced_frames(&tokens, &slots)
         }
@@ -214,6 +240,7 @@ pub async fn generate_job(
             exemplar,
             sampling: p.sampling,
             others: Vec::new(),
+            root_from_feet,
         });
     }
     // Best of N: each candidate continues the exemplar its own seed picks
@@ -239,6 +266,7 @@ pub async fn generate_job(
         exemplar,
         sampling: p.sampling,
         others,
+        root_from_feet,
     })
 }
 
@@ -334,6 +362,9 @@ pub async fn generate(
             };
             let vocab = job.session.vocabulary();
             let mut m = vocab.decode_motion(&all, "generated")?;
+            if job.root_from_feet {
+                m = crate::motion::contact::lock_feet(&m);
+            }
             m.labels = job.labels.clone();
             let secs = t0.elapsed().as_secs_f64();
             let report = GenerateReport {
@@ -397,10 +428,13 @@ pub async fn generate_stream(
         .clone()
         .try_acquire_owned()
         .map_err(|_| ApiError::Busy("every worker is busy; retry generate later".into()))?;
+    let mut dec = FrameDecoder::new();
+    if job.root_from_feet {
+        dec = dec.root_from_feet(job.session.vocabulary())?;
+    }
     let (tx, rx) = mpsc::channel(64);
     tokio::task::spawn_blocking(move || {
         let _p = permit;
-        let mut dec = FrameDecoder::new();
         for index in 0..job.frames {
             let t0 = Instant::now();
             let out = job

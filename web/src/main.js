@@ -363,6 +363,8 @@ async function generatePage() {
     ${samplingFields("g")}
     <div class="row"><label for="g-steer">steer to the labels</label><input id="g-steer" type="checkbox">
       <span class="note">every 20 frames, 4 continuations; the model's class heads keep the likeliest (4× the work)</span></div>
+    <div class="row"><label for="g-feet">feet on the floor</label><input id="g-feet" type="checkbox">
+      <span class="note">the root travels as the planted foot says, so feet do not slide (the model's own path in the air)</span></div>
     <h3>Prompt joints</h3>
     <div class="row"><label for="g-prompt">from</label><select id="g-prompt"><option value="">no prompt</option>${motionOptions()}</select></div>
     ${jointBoxes(m, "g")}
@@ -384,6 +386,7 @@ async function generate() {
     body.candidates = 4;
     body.rank_every = 20;
   }
+  if ($("#g-feet").checked) body.root = "feet";
   const promptId = $("#g-prompt").value;
   const joints = chosenJoints("g");
   let prompt = null;

@@ -130,6 +130,7 @@ pub(super) fn generate_params(
         exemplar: r.exemplar,
         candidates: r.candidates,
         rank_every: r.rank_every,
+        root: r.root,
     })
 }
 

@@ -245,6 +245,9 @@ pub struct GenerateBody {
     /// made (absent or 0 = rank whole clips).
     #[serde(default)]
     pub rank_every: u32,
+    /// The root's ground path: `model` (the default) or `feet`.
+    #[serde(default)]
+    pub root: String,
 }
 
 impl GenerateBody {
@@ -263,6 +266,7 @@ impl GenerateBody {
             exemplar: self.exemplar,
             candidates: self.candidates,
             rank_every: self.rank_every,
+            root: self.root,
         })
     }
 }
