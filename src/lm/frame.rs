@@ -74,6 +74,13 @@ impl FrameConfig {
         2 * self.radius + 4
     }
 
+    /// Whether slot `s` holds an angle, whose bins wrap round (−π meets
+    /// π): every joint's slot, not the root's last three (ground velocity
+    /// x and z, and height), whose ends lie metres apart.
+    pub fn wraps(&self, s: usize) -> bool {
+        s + 3 < self.slots
+    }
+
     /// The change code of going from bin `from` to bin `to`.
     pub fn change(&self, from: Option<u32>, to: u32) -> u32 {
         match from {

@@ -250,6 +250,7 @@ impl FrameGenerator {
                     out.data(0),
                     out.data(1),
                     p1.as_ref().map(|p| p[s]),
+                    c.wraps(s),
                 ),
             };
             inp = c.change(p1.as_ref().map(|p| p[s]), tok);
@@ -313,7 +314,11 @@ impl FrameGenerator {
 
 /// A slot's token: a change from the previous frame's token (or an
 /// escape to the absolute head, with the change window masked out); the
-/// absolute head alone when there is no previous frame.
+/// absolute head alone when there is no previous frame. `wraps`: the
+/// slot is an angle, whose bins meet round the back (max_jump measures
+/// the shorter way round); else (the root's velocity and height) a jump
+/// is the plain distance: before session 21 the height could wrap from
+/// the floor to two metres up in one frame.
 fn draw(
     sampling: &Sampling,
     rng: &mut StdRng,
@@ -321,30 +326,32 @@ fn draw(
     rel: &[f32],
     abs: &[f32],
     p1: Option<u32>,
+    wraps: bool,
 ) -> u32 {
     let Some(p) = p1 else {
         return sampling.draw(abs, rng) as u32;
     };
     let (r0, near) = (c.radius as i64, sampling.keep_near as i64);
     let bins = c.bins as i64;
-    // max_jump: a bin the slot may reach (the shorter way round). The
+    // max_jump: a bin the slot may reach (an angle's the shorter way round). The
     // change window's targets lie within r0 bins, so they need masking
     // only under a limit below r0; the escape only when no bin outside the
     // window is reachable.
     let jump = sampling.max_jump as i64;
     let reach = |b: i64| {
         let d = (b - p as i64).abs();
-        jump == 0 || d.min(bins - d) <= jump
+        jump == 0 || if wraps { d.min(bins - d) } else { d } <= jump
     };
+    let can_escape = escapable(p as i64, r0, jump, bins, wraps);
     let mut limited;
-    let rel = if jump > 0 && (jump < r0 || !escapable(p as i64, r0, jump, bins)) {
+    let rel = if jump > 0 && (jump < r0 || !can_escape) {
         limited = rel.to_vec();
         for (i, x) in limited[..=2 * r0 as usize].iter_mut().enumerate() {
             if !reach(p as i64 + i as i64 - r0) {
                 *x = f32::NEG_INFINITY;
             }
         }
-        if !escapable(p as i64, r0, jump, bins) {
+        if !can_escape {
             limited[c.esc() as usize] = f32::NEG_INFINITY;
         }
         &limited[..]
@@ -368,31 +375,83 @@ fn draw(
 }
 
 /// Whether a slot at bin `p` can escape its change window (a bin more than
-/// `r0` away) and still move at most `jump` bins the shorter way round
-/// (`jump` > 0): a bin just outside the window when `jump` > `r0`, else
-/// only a wrap-around one, at least `bins − jump` away.
-fn escapable(p: i64, r0: i64, jump: i64, bins: i64) -> bool {
+/// `r0` away) and still move at most `jump` bins (`jump` > 0), the
+/// shorter way round where the slot `wraps`: a bin just outside the
+/// window when `jump` > `r0`, else only a wrap-around one, at least
+/// `bins − jump` away.
+fn escapable(p: i64, r0: i64, jump: i64, bins: i64, wraps: bool) -> bool {
     let far = p.max(bins - 1 - p);
-    far > r0 && (jump > r0 || far >= bins - jump)
+    far > r0 && (jump > r0 || (wraps && far >= bins - jump))
 }
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    /// A 42-slot SMPL-13 frame config of 360 bins, change radius 4.
+    fn config() -> FrameConfig {
+        FrameConfig {
+            bins: 360,
+            slots: 42,
+            radius: 4,
+            d_emb: 8,
+            d_global: 8,
+            global_layers: 1,
+            global_heads: 1,
+            d_local: 8,
+            local_layers: 1,
+            local_heads: 1,
+            max_frames: 8,
+            vocab_size: 400,
+            cond_kinds: vec![],
+            classes: vec![],
+            ln_eps: 1e-5,
+            cond_every: false,
+        }
+    }
+
+    #[test]
+    fn max_jump_wraps_round_for_angles_only() {
+        // Every escape's mass on bin 358, the slot at bin 2: 4 bins away
+        // the short way round for an angle, 356 for the root's height.
+        let c = config();
+        let mut rel = vec![f32::NEG_INFINITY; c.rel_classes()];
+        rel[c.esc() as usize] = 0.0;
+        let mut abs = vec![-10.0f32; c.bins];
+        abs[358] = 10.0;
+        let sampling = Sampling {
+            temperature: 1.0,
+            max_jump: 48,
+            ..Sampling::default()
+        };
+        let mut rng = StdRng::seed_from_u64(1);
+        let (angle, height) = (0, c.slots - 1);
+        assert!(c.wraps(angle) && !c.wraps(height) && !c.wraps(c.slots - 3));
+        for _ in 0..50 {
+            let a = draw(&sampling, &mut rng, &c, &rel, &abs, Some(2), c.wraps(angle));
+            assert_eq!(a, 358, "an angle may wrap round");
+            let h = draw(&sampling, &mut rng, &c, &rel, &abs, Some(2), c.wraps(height));
+            assert!(h <= 2 + 48, "the height jumped from bin 2 to {h}");
+        }
+    }
+
     #[test]
     fn escapable_matches_a_search_over_every_bin() {
         for bins in [10i64, 17, 360] {
             for r0 in [1i64, 3, 4] {
                 for jump in 1..=bins / 2 {
                     for p in 0..bins {
-                        let search = (0..bins).any(|b| {
-                            let d = (b - p).abs();
-                            d > r0 && d.min(bins - d) <= jump
-                        });
-                        assert_eq!(
-                            super::escapable(p, r0, jump, bins),
-                            search,
-                            "bins {bins} r0 {r0} jump {jump} p {p}"
-                        );
+                        for wraps in [true, false] {
+                            let search = (0..bins).any(|b| {
+                                let d = (b - p).abs();
+                                d > r0 && if wraps { d.min(bins - d) } else { d } <= jump
+                            });
+                            assert_eq!(
+                                super::escapable(p, r0, jump, bins, wraps),
+                                search,
+                                "bins {bins} r0 {r0} jump {jump} p {p} wraps {wraps}"
+                            );
+                        }
                     }
                 }
             }
