@@ -156,29 +156,35 @@ pub fn frame_changes(cfg: &FrameConfig, frame: &[u32], p1: Option<&[u32]>) -> Ve
         .collect()
 }
 
+/// A small SMPL-13 frame config (360 bins, 42 slots, radius 8) for tests.
+#[cfg(test)]
+pub(crate) fn test_config() -> FrameConfig {
+    FrameConfig {
+        bins: 360,
+        slots: 42,
+        radius: 8,
+        d_emb: 8,
+        d_global: 32,
+        global_layers: 1,
+        global_heads: 2,
+        d_local: 16,
+        local_layers: 1,
+        local_heads: 2,
+        max_frames: 16,
+        vocab_size: 400,
+        cond_kinds: vec![],
+        classes: vec![],
+        ln_eps: 1e-5,
+        cond_every: false,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn cfg() -> FrameConfig {
-        FrameConfig {
-            bins: 360,
-            slots: 42,
-            radius: 8,
-            d_emb: 8,
-            d_global: 32,
-            global_layers: 1,
-            global_heads: 2,
-            d_local: 16,
-            local_layers: 1,
-            local_heads: 2,
-            max_frames: 16,
-            vocab_size: 400,
-            cond_kinds: vec![],
-            classes: vec![],
-            ln_eps: 1e-5,
-            cond_every: false,
-        }
+        test_config()
     }
 
     #[test]

@@ -388,33 +388,11 @@ fn escapable(p: i64, r0: i64, jump: i64, bins: i64, wraps: bool) -> bool {
 mod tests {
     use super::*;
 
-    /// A 42-slot SMPL-13 frame config of 360 bins, change radius 4.
-    fn config() -> FrameConfig {
-        FrameConfig {
-            bins: 360,
-            slots: 42,
-            radius: 4,
-            d_emb: 8,
-            d_global: 8,
-            global_layers: 1,
-            global_heads: 1,
-            d_local: 8,
-            local_layers: 1,
-            local_heads: 1,
-            max_frames: 8,
-            vocab_size: 400,
-            cond_kinds: vec![],
-            classes: vec![],
-            ln_eps: 1e-5,
-            cond_every: false,
-        }
-    }
-
     #[test]
     fn max_jump_wraps_round_for_angles_only() {
         // Every escape's mass on bin 358, the slot at bin 2: 4 bins away
         // the short way round for an angle, 356 for the root's height.
-        let c = config();
+        let c = crate::lm::frame::test_config();
         let mut rel = vec![f32::NEG_INFINITY; c.rel_classes()];
         rel[c.esc() as usize] = 0.0;
         let mut abs = vec![-10.0f32; c.bins];
@@ -430,7 +408,15 @@ mod tests {
         for _ in 0..50 {
             let a = draw(&sampling, &mut rng, &c, &rel, &abs, Some(2), c.wraps(angle));
             assert_eq!(a, 358, "an angle may wrap round");
-            let h = draw(&sampling, &mut rng, &c, &rel, &abs, Some(2), c.wraps(height));
+            let h = draw(
+                &sampling,
+                &mut rng,
+                &c,
+                &rel,
+                &abs,
+                Some(2),
+                c.wraps(height),
+            );
             assert!(h <= 2 + 48, "the height jumped from bin 2 to {h}");
         }
     }
