@@ -106,22 +106,30 @@ pub fn score(sums: &[Vec<f64>], frames: usize, want: &[(usize, usize)]) -> f64 {
         .sum()
 }
 
-/// Mean absolute second difference of the slots' bins (the shorter way
-/// round) over a continuation's frames (value tokens first, `slots` of
-/// them; 0 under three frames): its acceleration in bins per frame².
-pub fn roughness(frames: &[Vec<u32>], slots: usize, bins: usize) -> f64 {
-    let d = |a: u32, b: u32| -> i64 {
-        let x = (a as i64 - b as i64).rem_euclid(bins as i64);
-        if 2 * x > bins as i64 {
-            x - bins as i64
+/// Mean absolute second difference of the slots' bins over a
+/// continuation's frames (value tokens first, `cfg.slots` of them; 0 under
+/// three frames): its acceleration in bins per frame². An angle's change
+/// is taken the shorter way round; the root's velocity and height slots
+/// do not wrap ([`FrameConfig::wraps`]).
+pub fn roughness(frames: &[Vec<u32>], cfg: &FrameConfig) -> f64 {
+    let bins = cfg.bins as i64;
+    let d = |a: u32, b: u32, wraps: bool| -> i64 {
+        let x = a as i64 - b as i64;
+        if !wraps {
+            return x;
+        }
+        let x = x.rem_euclid(bins);
+        if 2 * x > bins {
+            x - bins
         } else {
             x
         }
     };
     let (mut sum, mut n) = (0.0, 0usize);
     for w in frames.windows(3) {
-        for s in 0..slots {
-            sum += (d(w[2][s], w[1][s]) - d(w[1][s], w[0][s])).abs() as f64;
+        for s in 0..cfg.slots {
+            let wraps = cfg.wraps(s);
+            sum += (d(w[2][s], w[1][s], wraps) - d(w[1][s], w[0][s], wraps)).abs() as f64;
             n += 1;
         }
     }
@@ -199,7 +207,7 @@ impl Steered {
 
     fn run_round(&mut self, forced_at: &dyn Fn(usize) -> Vec<Option<u32>>) -> Result<(), LmError> {
         let base = self.gen.produced;
-        let (slots, bins) = (self.gen.config().slots, self.gen.config().bins);
+        let cfg = self.gen.config().clone();
         let mut made: Vec<(f64, f64, FrameGenerator, Vec<Vec<u32>>)> = Vec::new();
         for i in 0..self.candidates {
             // Seeds differ per round and per candidate, far apart.
@@ -213,7 +221,7 @@ impl Steered {
                 frames.push(g.next_frame(&forced_at(base + j))?);
             }
             let s = score(g.class_logit_sums(), g.produced, &self.want);
-            made.push((s, roughness(&frames, slots, bins), g, frames));
+            made.push((s, roughness(&frames, &cfg), g, frames));
         }
         let scores: Vec<f64> = made.iter().map(|m| m.0).collect();
         let rough: Vec<f64> = made.iter().map(|m| m.1).collect();
@@ -231,13 +239,24 @@ impl Steered {
 #[cfg(test)]
 mod tests {
     #[test]
-    fn roughness_is_the_mean_second_difference_the_short_way_round() {
-        // One slot of 10 bins: 8 → 9 → 0 (+1, +1 across the wrap): 0;
-        // 0 → 3: +3 after +1 gives 2.
-        let f = |b: u32| vec![b, 5];
-        let frames = vec![f(8), f(9), f(0), f(3)];
-        assert!((super::roughness(&frames, 2, 10) - 0.5).abs() < 1e-12);
-        assert_eq!(super::roughness(&frames[..2], 2, 10), 0.0);
+    fn roughness_is_the_mean_second_difference_angles_the_short_way_round() {
+        let c = crate::lm::frame::test_config();
+        let h = c.slots - 1;
+        let f = |angle: u32, height: u32| {
+            let mut v = vec![5u32; c.slots];
+            (v[0], v[h]) = (angle, height);
+            v
+        };
+        // An angle 358 → 359 → 0 → 3 (+1, +1 across the wrap, +3): second
+        // differences 0 and 2 over two windows of 42 slots.
+        let frames = vec![f(358, 100), f(359, 100), f(0, 100), f(3, 100)];
+        let r = super::roughness(&frames, &c);
+        assert!((r - 2.0 / 84.0).abs() < 1e-12, "{r}");
+        assert_eq!(super::roughness(&frames[..2], &c), 0.0);
+        // The height from the bottom bin to the top one is 359 bins, not 1.
+        let jump = vec![f(5, 0), f(5, 0), f(5, 359)];
+        let r = super::roughness(&jump, &c);
+        assert!((r - 359.0 / 42.0).abs() < 1e-12, "{r}");
     }
 
     #[test]
