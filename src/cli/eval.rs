@@ -46,10 +46,10 @@ pub enum EvalCmd {
         /// request's `rank_every` does); 0 ranks whole clips.
         #[arg(long, default_value_t = 0)]
         rank_every: usize,
-        /// The generated root's ground path: as the model's tokens carry it
-        /// (`carried`), rebuilt from foot contact (`feet`, what a request's
-        /// `root: "feet"` does), or `both` rows from the same clips.
-        #[arg(long, default_value = "carried")]
+        /// The generated root's ground path, named as a request's `root`
+        /// names it: as the model's tokens carry it (`model`), rebuilt from
+        /// foot contact (`feet`), or `both` rows from the same clips.
+        #[arg(long, default_value = "model")]
         root: String,
         /// The first clip's sampling seed (clip i of a label uses seed + i):
         /// another seed draws another set of clips, to see how far a row

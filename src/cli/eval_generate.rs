@@ -66,10 +66,10 @@ pub fn run(
         bail!("--seconds: {seconds} (want 0 < s ≤ 120)");
     }
     let root_from_feet = match root {
-        "carried" => vec![false],
+        "model" => vec![false],
         "feet" => vec![true],
         "both" => vec![false, true],
-        o => bail!("--root: '{o}' is not carried, feet or both"),
+        o => bail!("--root: '{o}' is not model, feet or both"),
     };
     let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
     let samplings = samplings

@@ -4,13 +4,14 @@
 //! own, sampled beside the joint angles: nothing ties them to what the
 //! legs do, so a body that stands can drift and a body that steps can
 //! slide. [`FootLock`] replaces the root's ground displacement by the one
-//! that keeps the supporting foot where it was: while the lowest foot
-//! joint stays within [`CONTACT_HEIGHT`] of the floor seen so far on two
-//! frames running, the root moves by the opposite of that foot's move
-//! relative to the root; in the air (a jump, a run's flight) the
-//! displacement the motion carried is kept. It is causal (each frame
-//! needs only the frames before it), so a stream and a one-shot clip get
-//! the same path.
+//! that keeps the supporting foot where it was: of the foot joints within
+//! [`CONTACT_HEIGHT`] of the lowest height the feet have reached, on this
+//! frame and the last, the one that would have moved least over the
+//! ground had the root kept its last step bears the weight, and the root
+//! moves by the opposite of that foot's move relative to it; with no foot
+//! down (a jump, a run's flight) the displacement the motion carried is
+//! kept. It is causal (each frame needs only the frames before it), so a
+//! stream and a one-shot clip get the same path.
 
 use super::clip::Motion;
 use super::rotation::Vec3;
@@ -142,7 +143,6 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         let s13 = f(&Skeleton::smpl13());
-        assert_eq!(s13.len(), 2, "{s13:?}");
         assert_eq!(s13, ["Left_Ankle", "Right_Ankle"]);
         assert_eq!(f(&Skeleton::smpl24()).len(), 4);
     }
