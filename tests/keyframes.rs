@@ -68,7 +68,7 @@ fn keyframe_metrics_on_aist_samples_behave_as_the_thesis_requires() {
             .clone()
     };
     for s in [Select::Even, Select::Onset, Select::Dp] {
-        for how in ["slerp", "bezier", "bezier-avg"] {
+        for how in ["slerp", "bezier", "bezier-avg", "catmull-rom"] {
             // Thesis 001 §4.1: more keyframes, lower error.
             let (a, b, c) = (row(s, how, 3), row(s, how, 5), row(s, how, 9));
             assert!(

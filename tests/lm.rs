@@ -332,6 +332,78 @@ fn corrupt_checkpoint_and_empty_corpus_are_clear_errors() {
     assert!(e.contains("empty corpus"), "{e}");
 }
 
+/// An in-betweener's base travels in its manifest: a fresh model (its output
+/// layer starts at zero, so its residual is zero) rebuilds exactly the
+/// Catmull-Rom spline when its base is `catmull-rom`, exactly SLERP when it
+/// is `slerp`, and a manifest written before the field existed reads as
+/// SLERP. Training examples start from the same base.
+#[test]
+fn inbetweener_base_is_kept_and_used() {
+    use choreo::keyframes::inbetween::{catmull_rom, slerp};
+    use choreo::lm::inbetween::{Base, InbetweenConfig, Inbetweener};
+    use choreo::train::inbetween as ib;
+    use rand::SeedableRng;
+    let m = sine_motion(100, 0.3);
+    let keys = vec![0, 12, 24, 36, 48, 60, 72, 84, 99];
+    let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+    for (base, want) in [
+        (Base::CatmullRom, catmull_rom(&m, &keys).unwrap()),
+        (Base::Slerp, slerp(&m, &keys).unwrap()),
+    ] {
+        let cfg = InbetweenConfig {
+            window: 16,
+            d_model: 16,
+            n_layers: 1,
+            n_heads: 2,
+            d_ff: 32,
+            ln_eps: 1e-5,
+            condition: None,
+            base,
+        };
+        let net = ib::InbetweenNet::new(cfg.clone(), &Device::Cpu).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        ib::export(
+            &net,
+            DataInfo::default(),
+            Default::default(),
+            serde_json::json!({}),
+            dir.path(),
+        )
+        .unwrap();
+        let model = Inbetweener::load(dir.path()).unwrap();
+        assert_eq!(model.config().base, base);
+        let r = model.rebuild(&m, &keys).unwrap();
+        let gap = r
+            .positions()
+            .iter()
+            .zip(want.positions().iter())
+            .map(|(a, b)| (0..3).map(|i| (a[i] - b[i]).abs()).fold(0.0, f64::max))
+            .fold(0.0, f64::max);
+        assert!(gap < 1e-6, "{base:?}: {gap} m from the base");
+        // A training example's target is the clip minus this base.
+        let clip = ib::Clip {
+            corpus: "synthetic".into(),
+            name: "sine".into(),
+            labels: m.labels.clone(),
+            motion: m.clone(),
+        };
+        let ex = ib::example(&cfg, &clip, 12, &mut rng).unwrap();
+        assert!(ex.target.iter().all(|v| v.is_finite()));
+        if base == Base::Slerp {
+            // Without "base" (a manifest from before the field) it reads as SLERP.
+            let path = dir.path().join("manifest.json");
+            let mut v: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+            v["config"].as_object_mut().unwrap().remove("base");
+            std::fs::write(&path, v.to_string()).unwrap();
+            assert_eq!(
+                Inbetweener::load(dir.path()).unwrap().config().base,
+                Base::Slerp
+            );
+        }
+    }
+}
+
 /// The learned in-betweener: the export in tract matches candle, a rebuild
 /// keeps the keyframes and gives finite poses, training lowers the loss
 /// on a clip SLERP cannot rebuild, and a broken export is a clear error.
@@ -348,6 +420,7 @@ fn inbetweener_export_parity_rebuild_and_bad_manifests() {
         d_ff: 32,
         ln_eps: 1e-5,
         condition: Some(("genre".into(), vec!["gBR".into(), "gJS".into()])),
+        base: Default::default(),
     };
     let dev = Device::Cpu;
     let mut rng = rand::rngs::StdRng::seed_from_u64(3);

@@ -52,6 +52,13 @@ fn rotations_agree_with_scipy() {
 }
 
 #[test]
+fn catmull_rom_agrees_with_scipy() {
+    if python_with("numpy, scipy") {
+        run_script("check_catmull_rom.py", Some("aistpp"));
+    }
+}
+
+#[test]
 fn sequence_whitening_agrees_with_scipy() {
     if python_with("numpy, scipy") {
         run_script("check_whiten.py", None);

@@ -32,6 +32,9 @@ pub enum DevCmd {
     /// Read `{"quats": [[w,x,y,z]...], "orders": ["ZXY", "xyz", ...]}` on stdin;
     /// print every conversion as JSON.
     Rotations,
+    /// Read `{"values": [[...] per frame], "keys": [...]}` on stdin; print the
+    /// Catmull-Rom in-betweens through those keyframes (`{"values": ...}`).
+    CatmullRom,
     /// Read `{"vectors": [[...]...], "sequence": [...]}` on stdin; print the
     /// sequence whitening fitted on them (`mean`, `directions`, `ratios`).
     Whiten {
@@ -45,6 +48,7 @@ pub enum DevCmd {
 pub fn run(cmd: DevCmd) -> Result<()> {
     match cmd {
         DevCmd::Rotations => dev_rotations(),
+        DevCmd::CatmullRom => dev_catmull_rom(),
         DevCmd::Whiten { k, shrink } => {
             let mut s = String::new();
             std::io::stdin().read_to_string(&mut s)?;
@@ -132,6 +136,33 @@ fn dev_features(motion: &std::path::Path, start: usize, pca_on: &[PathBuf]) -> R
             "pca": pca.as_ref().map(|p| json!({"mean": p.mean, "components": p.components, "explained_variance": p.explained_variance, "projection": p.project_window(&w)})),
         })
     );
+    Ok(())
+}
+
+fn dev_catmull_rom() -> Result<()> {
+    let mut s = String::new();
+    std::io::stdin().read_to_string(&mut s)?;
+    let v: serde_json::Value = serde_json::from_str(&s)?;
+    let values: Vec<Vec<f64>> = serde_json::from_value(v["values"].clone()).context("values")?;
+    let keys: Vec<usize> = serde_json::from_value(v["keys"].clone()).context("keys")?;
+    let channels = values.first().map_or(0, |r| r.len());
+    if channels == 0 || values.iter().any(|r| r.len() != channels) {
+        bail!("values: rows of one positive length");
+    }
+    if keys.len() < 2
+        || keys[0] != 0
+        || keys[keys.len() - 1] != values.len() - 1
+        || keys.windows(2).any(|w| w[1] <= w[0])
+    {
+        bail!("keys: strictly increasing from 0 to the last frame");
+    }
+    let x = choreo::tokenize::Series {
+        channels,
+        data: values.concat(),
+    };
+    let out = choreo::keyframes::inbetween::catmull_rom_series(&x, &keys);
+    let rows: Vec<&[f64]> = out.data.chunks(channels).collect();
+    println!("{}", json!({ "values": rows }));
     Ok(())
 }
 

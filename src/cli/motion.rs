@@ -110,7 +110,7 @@ pub struct KeyframesArgs {
     /// even | onset | percussive | nmfd | dp
     #[arg(long, default_value = "dp")]
     pub select: String,
-    /// slerp | bezier | learned
+    /// slerp | bezier | catmull-rom | learned
     #[arg(long, default_value = "slerp")]
     pub inbetween: String,
     /// The learned in-betweener (a folder written by `choreo-train
@@ -417,11 +417,12 @@ fn keyframes_cmd(
     let inbetween = match inbetween.as_str() {
         "slerp" => Inbetween::Slerp,
         "bezier" => Inbetween::Bezier,
+        "catmull-rom" => Inbetween::CatmullRom,
         "learned" => Inbetween::Learned(LearnedModel(std::sync::Arc::new(
             choreo::lm::inbetween::Inbetweener::load(inbetweener)
                 .with_context(|| format!("--inbetweener {}", inbetweener.display()))?,
         ))),
-        other => bail!("--inbetween: '{other}' is not slerp, bezier or learned"),
+        other => bail!("--inbetween: '{other}' is not slerp, bezier, catmull-rom or learned"),
     };
     let music = match (music, bpm) {
         (Some(p), _) => {

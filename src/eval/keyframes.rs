@@ -105,7 +105,7 @@ pub fn eval_keyframes(
                         .collect::<Result<Vec<_>, _>>()
                 })
                 .collect::<Result<_, _>>()?;
-            for how in ["slerp", "bezier", "bezier-avg"] {
+            for how in ["slerp", "bezier", "bezier-avg", "catmull-rom"] {
                 let mut mse_sum = 0.0;
                 let (mut real_k, mut fake_k, mut real_g, mut fake_g) =
                     (vec![], vec![], vec![], vec![]);
@@ -113,6 +113,7 @@ pub fn eval_keyframes(
                     let method = match how {
                         "slerp" => Inbetween::Slerp,
                         "bezier" => Inbetween::Bezier,
+                        "catmull-rom" => Inbetween::CatmullRom,
                         _ => {
                             let train: Vec<(&Motion, Vec<usize>)> = clips
                                 .iter()

@@ -9,9 +9,18 @@
 //! - [`BezierOffsets`]: the thesis's fair variant — P1 and P2 are placed at
 //!   the thirds of the keyframe chord plus per-channel offsets averaged over
 //!   the segments of a training set, so no ground truth of the clip is used.
+//! - [`catmull_rom`]: the spline an animator's "auto" tangents give, through
+//!   the keyframes alone — per channel a cubic Hermite whose tangent at each
+//!   keyframe is the slope between its two neighbours (one-sided at the ends),
+//!   for any keyframe spacing (rotations in rotation vectors relative to each
+//!   segment's first keyframe, the root as it is).
+//!   Sees no in-between of the clip.
 
 use super::bad;
-use crate::motion::rotation::{axis_angle_to_quat, lerp3, quat_to_axis_angle, slerp as qslerp};
+use crate::motion::rotation::{
+    add, axis_angle_to_quat, lerp3, norm, quat_conj, quat_mul, quat_to_axis_angle, scale,
+    slerp as qslerp, sub, Vec3,
+};
 use crate::motion::{Motion, MotionError};
 use crate::tokenize::{unwrap_joints, Series};
 use serde::{Deserialize, Serialize};
@@ -151,6 +160,117 @@ pub fn bezier(m: &Motion, keys: &[usize]) -> Result<Motion, MotionError> {
     Ok(render(m, &x, keys, |a, b, c| fit_segment(&x, a, b, c)))
 }
 
+/// Catmull-Rom tangents of every channel at every keyframe, per frame: the
+/// slope between the neighbouring keyframes, `(x[k₊] − x[k₋]) / (k₊ − k₋)`,
+/// or to the one neighbour at the first and last keyframes.
+fn key_tangents(x: &Series, keys: &[usize]) -> Vec<Vec<f64>> {
+    let last = keys.len() - 1;
+    (0..keys.len())
+        .map(|i| {
+            let (lo, hi) = (keys[i.saturating_sub(1)], keys[(i + 1).min(last)]);
+            let span = (hi - lo) as f64;
+            (0..x.channels)
+                .map(|c| (x.row(hi)[c] - x.row(lo)[c]) / span)
+                .collect()
+        })
+        .collect()
+}
+
+/// Catmull-Rom through the keyframes (tension 0, non-uniform spacing): each
+/// segment is the cubic Hermite with the keyframes' neighbour-slope
+/// tangents, written as a Bézier with P1 = P0 + m₀·L/3, P2 = P3 − m₁·L/3.
+/// The root translation is splined as it is (exact for any quadratic at
+/// evenly spaced keyframes). A joint's rotation is splined, segment by
+/// segment, in the rotation vectors of the four nearest keyframes relative
+/// to the segment's first (each the short way round, as SLERP goes), so a
+/// steady turn about one axis is followed exactly. (Splining continuous
+/// axis-angle instead bends a turning body off its path: on held-out
+/// AIST++ dance at 10-frame spacing that was 29 % worse than SLERP.)
+pub fn catmull_rom(m: &Motion, keys: &[usize]) -> Result<Motion, MotionError> {
+    check_keys(m, keys)?;
+    let j = m.joints();
+    let trans_x = Series {
+        channels: 3,
+        data: m.trans.iter().flat_map(|t| t.iter().copied()).collect(),
+    };
+    let trans_y = catmull_rom_series(&trans_x, keys);
+    let mut rots = m.rotations.clone();
+    let mut trans = m.trans.clone();
+    let last = keys.len() - 1;
+    for (i, w) in keys.windows(2).enumerate() {
+        let (a, b) = (w[0], w[1]);
+        let (prev, next) = (keys[i.saturating_sub(1)], keys[(i + 2).min(last)]);
+        let len = (b - a) as f64;
+        for k in 0..j {
+            let qa = axis_angle_to_quat(m.rotations[a * j + k]);
+            let inv = quat_conj(qa);
+            let local = |t: usize| {
+                quat_to_axis_angle(quat_mul(inv, axis_angle_to_quat(m.rotations[t * j + k])))
+            };
+            let (v_prev, v_b) = (local(prev), local(b));
+            // The next keyframe is two gaps away and may be more than half a
+            // turn on: take the branch that continues the last gap's way.
+            let q_b = axis_angle_to_quat(m.rotations[b * j + k]);
+            let q_next = axis_angle_to_quat(m.rotations[next * j + k]);
+            let hint = add(v_b, quat_to_axis_angle(quat_mul(quat_conj(q_b), q_next)));
+            let v_next = nearest_branch(local(next), hint);
+            // Tangents per frame at a and b (one-sided at the clip's ends).
+            let (m0, m1) = (
+                scale(sub(v_b, v_prev), 1.0 / (b - prev) as f64),
+                scale(v_next, 1.0 / (next - a) as f64),
+            );
+            let (p1, p2) = (scale(m0, len / 3.0), sub(v_b, scale(m1, len / 3.0)));
+            for t in a + 1..b {
+                let bw = bern((t - a) as f64 / len);
+                let v = add(add(scale(p1, bw[1]), scale(p2, bw[2])), scale(v_b, bw[3]));
+                rots[t * j + k] = quat_to_axis_angle(quat_mul(qa, axis_angle_to_quat(v)));
+            }
+        }
+        for t in a + 1..b {
+            let r = trans_y.row(t);
+            trans[t] = [r[0], r[1], r[2]];
+        }
+    }
+    Ok(m.with_data(trans, rots))
+}
+
+/// The rotation vector equal (as a rotation) to `v` nearest `hint`: `v`, or
+/// the same rotation the long way round (angle |v| − 2π about v's axis).
+fn nearest_branch(v: Vec3, hint: Vec3) -> Vec3 {
+    let n = norm(v);
+    if n < 1e-12 {
+        return v;
+    }
+    let long = scale(v, 1.0 - 2.0 * std::f64::consts::PI / n);
+    if norm(sub(long, hint)) < norm(sub(v, hint)) {
+        long
+    } else {
+        v
+    }
+}
+
+/// [`catmull_rom`] on plain channels (`keys` checked by the caller: strictly
+/// increasing, first 0, last the final frame).
+pub fn catmull_rom_series(x: &Series, keys: &[usize]) -> Series {
+    let tangents = key_tangents(x, keys);
+    let mut out = x.clone();
+    let ch = x.channels;
+    for (i, w) in keys.windows(2).enumerate() {
+        let (a, b) = (w[0], w[1]);
+        let len = (b - a) as f64;
+        for c in 0..ch {
+            let (p0, p3) = (x.row(a)[c], x.row(b)[c]);
+            let p1 = p0 + tangents[i][c] * len / 3.0;
+            let p2 = p3 - tangents[i + 1][c] * len / 3.0;
+            for t in a + 1..b {
+                let bw = bern((t - a) as f64 / len);
+                out.data[t * ch + c] = bw[0] * p0 + bw[1] * p1 + bw[2] * p2 + bw[3] * p3;
+            }
+        }
+    }
+    out
+}
+
 /// Per-channel control-point offsets from the chord's thirds, averaged over
 /// training segments: P1 = (2P0 + P3)/3 + d1, P2 = (P0 + 2P3)/3 + d2.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -259,6 +379,64 @@ mod tests {
         assert!((s.trans[40][0] - 0.4).abs() < 1e-12);
         // The cubic is not linear: SLERP errs in between, Bézier does not.
         assert!((s.rotations[10 * 13 + 9][2] - m.rotations[10 * 13 + 9][2]).abs() > 1e-3);
+    }
+
+    #[test]
+    fn catmull_rom_keeps_keyframes_and_follows_a_quadratic() {
+        // Root x on a parabola, the elbow on a cubic: with keyframes every
+        // 10 frames the spline is exact on the parabola inside (central
+        // slopes of a quadratic are its derivative) and near the cubic.
+        let n = 61;
+        let mut m = cubic_clip(n);
+        for t in 0..n {
+            let u = t as f64 / 60.0;
+            m.trans[t][0] = 0.5 * u * u - 0.2 * u;
+        }
+        let keys: Vec<usize> = (0..n).step_by(10).collect();
+        let r = catmull_rom(&m, &keys).unwrap();
+        for &k in &keys {
+            assert_eq!(r.rotations[k * 13 + 9], m.rotations[k * 13 + 9]);
+            assert_eq!(r.trans[k], m.trans[k]);
+        }
+        for t in 10..50 {
+            assert!((r.trans[t][0] - m.trans[t][0]).abs() < 1e-12, "{t}");
+        }
+        let err = |x: &Motion| {
+            (0..n)
+                .map(|t| (x.rotations[t * 13 + 9][2] - m.rotations[t * 13 + 9][2]).powi(2))
+                .sum::<f64>()
+        };
+        let s = slerp(&m, &keys).unwrap();
+        assert!(err(&r) < 0.25 * err(&s), "{} vs {}", err(&r), err(&s));
+        // Uneven keyframes, and two keyframes only (a straight line).
+        let r2 = catmull_rom(&m, &[0, 7, 30, 60]).unwrap();
+        assert_eq!(r2.trans[7], m.trans[7]);
+        let line = catmull_rom(&m, &[0, 60]).unwrap();
+        let want = m.trans[0][0] + (m.trans[60][0] - m.trans[0][0]) * 0.25;
+        assert!((line.trans[15][0] - want).abs() < 1e-12);
+        assert!(catmull_rom(&m, &[0, 30, 30, 60]).is_err());
+        // A body spinning two turns at a steady rate about the vertical,
+        // keyframes every 10 frames (120° apart, so the keyframe after next
+        // is 240° on): the spline turns between keyframes as the body did,
+        // on the true heading (a steady turn is a straight line in the
+        // segment's rotation vectors; the ends' one-sided tangents are exact
+        // for it too).
+        let mut spin = cubic_clip(n);
+        for t in 0..n {
+            let a = 4.0 * std::f64::consts::PI * t as f64 / 60.0;
+            spin.rotations[t * 13] =
+                quat_to_axis_angle([(a / 2.0).cos(), 0.0, (a / 2.0).sin(), 0.0]);
+        }
+        let r = catmull_rom(&spin, &keys).unwrap();
+        for t in 0..n {
+            let (g, w) = (
+                axis_angle_to_quat(r.rotations[t * 13]),
+                axis_angle_to_quat(spin.rotations[t * 13]),
+            );
+            let dot: f64 = g.iter().zip(&w).map(|(a, b)| a * b).sum();
+            let angle = 2.0 * dot.abs().min(1.0).acos();
+            assert!(angle < 1e-6, "frame {t}: {angle}");
+        }
     }
 
     #[test]

@@ -1,12 +1,13 @@
 //! The learned in-betweener (thesis 001 §3.5.3, the *Motion* and *Genre*
 //! variants; SPEC §6): a small bidirectional transformer that looks at a
-//! window of SLERP-interpolated keyframes and predicts what SLERP got wrong
-//! — the residual to the real motion — for every in-between frame.
+//! window of interpolated keyframes (SLERP, the thesis's, or a Catmull-Rom
+//! spline: the config's [`Base`]) and predicts what the interpolation got
+//! wrong — the residual to the real motion — for every in-between frame.
 //!
 //! Frames are SMPL-24 at 60 fps. A frame's pose is each joint's rotation
 //! in the continuous 6D form (the first two columns of its matrix) and the
 //! root translation: [`POSE_DIM`] = 24 · 6 + 3 numbers. The model's input
-//! per frame is the SLERP pose (root x, z made relative to the window's
+//! per frame is the base pose (root x, z made relative to the window's
 //! first frame), the frame's phase between its two keyframes, the length
 //! of that segment in seconds, and the conditioning one-hot (a label kind
 //! such as `genre`; all zeros when the label is absent or unknown). The
@@ -49,6 +50,31 @@ pub struct InbetweenConfig {
     /// The label kind conditioned on and its values (one-hot), or none
     /// (the *Motion* variant).
     pub condition: Option<(String, Vec<String>)>,
+    /// The in-betweens the model starts from and corrects (models written
+    /// before this field: SLERP).
+    #[serde(default)]
+    pub base: Base,
+}
+
+/// The interpolation a model's residual is added to.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Base {
+    /// SLERP of every joint, the root lerped (thesis 001 §3.5.3).
+    #[default]
+    Slerp,
+    /// Catmull-Rom through the keyframes ([`crate::keyframes::inbetween::catmull_rom`]).
+    CatmullRom,
+}
+
+impl Base {
+    /// The base in-betweens of a clip from its keyframes.
+    pub fn rebuild(self, m: &Motion, keys: &[usize]) -> Result<Motion, MotionError> {
+        match self {
+            Base::Slerp => crate::keyframes::inbetween::slerp(m, keys),
+            Base::CatmullRom => crate::keyframes::inbetween::catmull_rom(m, keys),
+        }
+    }
 }
 
 impl InbetweenConfig {
@@ -346,11 +372,11 @@ impl Inbetweener {
     }
 
     /// Rebuild the in-betweens of a SMPL-24, 60 fps motion from its
-    /// keyframes: SLERP, then the model's residual.
+    /// keyframes: the model's base (SLERP or Catmull-Rom), then its residual.
     pub fn rebuild(&self, m: &Motion, keys: &[usize]) -> Result<Motion, MotionError> {
-        let base = crate::keyframes::inbetween::slerp(m, keys)?;
-        let base_poses = poses(&base)?;
         let cfg = self.config();
+        let base = cfg.base.rebuild(m, keys)?;
+        let base_poses = poses(&base)?;
         let phase = phases(keys, m.frames());
         let cond = cfg.condition_vector(&m.labels);
         let inputs: Vec<Vec<f32>> = window_starts(m.frames(), cfg.window)

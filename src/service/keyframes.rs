@@ -47,6 +47,8 @@ impl Select {
 pub enum Inbetween {
     Slerp,
     Bezier,
+    /// Catmull-Rom through the keyframes alone.
+    CatmullRom,
     /// Bézier with control points averaged over training data.
     BezierAverage(#[serde(skip)] BezierOffsets),
     /// SLERP plus the residual of a trained model (thesis 001 §3.5.3).
@@ -68,6 +70,7 @@ impl Inbetween {
         match self {
             Inbetween::Slerp => "slerp",
             Inbetween::Bezier => "bezier",
+            Inbetween::CatmullRom => "catmull-rom",
             Inbetween::BezierAverage(_) => "bezier-avg",
             Inbetween::Learned(_) => "learned",
         }
@@ -209,6 +212,7 @@ pub fn rebuild(m: &Motion, keys: &[usize], how: &Inbetween) -> Result<Motion, Mo
     match how {
         Inbetween::Slerp => inbetween::slerp(m, keys),
         Inbetween::Bezier => inbetween::bezier(m, keys),
+        Inbetween::CatmullRom => inbetween::catmull_rom(m, keys),
         Inbetween::BezierAverage(off) => off.apply(m, keys),
         Inbetween::Learned(model) => model.0.rebuild(m, keys),
     }
@@ -277,6 +281,7 @@ pub async fn keyframes(
     let inbetween = match p.inbetween.as_str() {
         "" | "slerp" => Inbetween::Slerp,
         "bezier" => Inbetween::Bezier,
+        "catmull-rom" => Inbetween::CatmullRom,
         "learned" => Inbetween::Learned(LearnedModel(state.inbetweener.clone().ok_or_else(
             || {
                 ApiError::Unavailable(
@@ -287,7 +292,7 @@ pub async fn keyframes(
         o => {
             return Err(ApiError::invalid(
                 "inbetween",
-                format!("'{o}' is not slerp, bezier or learned"),
+                format!("'{o}' is not slerp, bezier, catmull-rom or learned"),
             ))
         }
     };

@@ -261,13 +261,14 @@ pub fn example(
     let m = &clip.motion;
     let n = m.frames();
     let w0 = rng.gen_range(0..=n.saturating_sub(cfg.window));
-    // A margin of one segment on each side, so the window's edges are
-    // interpolated from keyframes outside it, as in a whole clip.
-    let a = w0.saturating_sub(spacing);
-    let b = (w0 + cfg.window + spacing).min(n);
+    // A margin of two segments on each side, so the window's edges are
+    // interpolated from keyframes outside it (and a spline's tangents from
+    // their neighbours), as in a whole clip.
+    let a = w0.saturating_sub(2 * spacing);
+    let b = (w0 + cfg.window + 2 * spacing).min(n);
     let cut = m.cut(a, b)?;
     let keys = spaced_keys(cut.frames(), spacing, rng.gen_range(1..=spacing));
-    let base = crate::keyframes::inbetween::slerp(&cut, &keys)?;
+    let base = cfg.base.rebuild(&cut, &keys)?;
     let (orig, bp) = (poses(&cut)?, poses(&base)?);
     let phase = phases(&keys, cut.frames());
     let cond = cfg.condition_vector(&clip.labels);
@@ -465,11 +466,13 @@ pub struct EvalRow {
     /// Bézier with control-point offsets averaged over training clips at
     /// the same spacing (the thesis's fair Bézier).
     pub bezier_avg_cm2: f64,
+    /// Catmull-Rom through the keyframes (no in-between seen).
+    pub catmull_rom_cm2: f64,
     pub learned_cm2: f64,
 }
 
 /// Held-out MSE (cm², FK positions) of SLERP, Bézier (fitted to the clip,
-/// and averaged over `train`) and the exported model on whole clips with
+/// and averaged over `train`), Catmull-Rom and the exported model on whole clips with
 /// keyframes every `spacing` frames.
 pub fn evaluate(
     model: &Inbetweener,
@@ -477,7 +480,7 @@ pub fn evaluate(
     clips: &[Clip],
     spacings: &[usize],
 ) -> Result<Vec<EvalRow>> {
-    use crate::keyframes::inbetween::{bezier, slerp, BezierOffsets};
+    use crate::keyframes::inbetween::{bezier, catmull_rom, slerp, BezierOffsets};
     let mut rows = Vec::new();
     for &s in spacings {
         let fit_on: Vec<(&Motion, Vec<usize>)> = train
@@ -487,7 +490,7 @@ pub fn evaluate(
             .map(|c| (&c.motion, spaced_keys(c.motion.frames(), s, s)))
             .collect();
         let avg = BezierOffsets::fit(&fit_on)?;
-        let mut sums = [0.0f64; 4];
+        let mut sums = [0.0f64; 5];
         let (mut n, mut frames) = (0, 0);
         for c in clips {
             let m = &c.motion;
@@ -501,6 +504,7 @@ pub fn evaluate(
             sums[1] += cm2(&bezier(m, &keys)?);
             sums[2] += cm2(&avg.apply(m, &keys)?);
             sums[3] += cm2(&model.rebuild(m, &keys)?);
+            sums[4] += cm2(&catmull_rom(m, &keys)?);
             n += 1;
             frames += m.frames();
         }
@@ -512,6 +516,7 @@ pub fn evaluate(
             slerp_cm2: sums[0] / k,
             bezier_fit_cm2: sums[1] / k,
             bezier_avg_cm2: sums[2] / k,
+            catmull_rom_cm2: sums[4] / k,
             learned_cm2: sums[3] / k,
         });
     }

@@ -4287,7 +4287,7 @@ void main() {
     <div class="row"><label for="k-select">chosen by</label><select id="k-select">
       <option value="dp">dynamic programming</option><option value="even">even spacing</option></select></div>
     <div class="row"><label for="k-between">in-betweens</label><select id="k-between">
-      <option value="slerp">SLERP</option><option value="bezier">B\xE9zier</option>
+      <option value="slerp">SLERP</option><option value="bezier">B\xE9zier</option><option value="catmull-rom">Catmull-Rom</option>
       ${i&&!i.error&&i.inbetweener?'<option value="learned">learned</option>':""}</select></div>
     <div class="row"><button id="k-go" class="primary" type="button">rebuild</button></div>
     <div id="k-result" class="note"></div>

@@ -502,7 +502,7 @@ async function keyframesPage() {
     <div class="row"><label for="k-select">chosen by</label><select id="k-select">
       <option value="dp">dynamic programming</option><option value="even">even spacing</option></select></div>
     <div class="row"><label for="k-between">in-betweens</label><select id="k-between">
-      <option value="slerp">SLERP</option><option value="bezier">Bézier</option>
+      <option value="slerp">SLERP</option><option value="bezier">Bézier</option><option value="catmull-rom">Catmull-Rom</option>
       ${m && !m.error && m.inbetweener ? `<option value="learned">learned</option>` : ""}</select></div>
     <div class="row"><button id="k-go" class="primary" type="button">rebuild</button></div>
     <div id="k-result" class="note"></div>

@@ -14,6 +14,7 @@ pub(crate) fn inbetween(a: InbetweenArgs) -> Result<()> {
         d_ff: 4 * a.d_model,
         ln_eps: 1e-5,
         condition: None,
+        base: a.base,
     };
     let dirs = choreo::train::data::corpus_dirs(&a.data.data, &a.data.corpora)?;
     let (motions, info) = choreo::train::data::read_motions(&dirs)?;
@@ -32,7 +33,12 @@ pub(crate) fn inbetween(a: InbetweenArgs) -> Result<()> {
     };
     let init = a.init.as_deref().map(Inbetweener::load).transpose()?;
     let cfg = match &init {
-        Some(m) => m.manifest.config.clone(),
+        // The parent's architecture and conditioning; the base is this run's
+        // (a SLERP model can be fine-tuned onto Catmull-Rom).
+        Some(m) => InbetweenConfig {
+            base: a.base,
+            ..m.manifest.config.clone()
+        },
         None => InbetweenConfig { condition, ..cfg },
     };
     cfg.validate("--window/--d-model/--heads")?;
@@ -103,10 +109,27 @@ pub(crate) fn inbetween(a: InbetweenArgs) -> Result<()> {
     )?;
     let secs = t0.elapsed().as_secs_f64();
     // Export, load back in tract, check parity, evaluate the export.
-    let training = serde_json::json!({"settings": settings, "steps_done": steps, "seconds": secs,
-        "init": a.init.as_ref().map(|p| p.display().to_string()),
+    let mut training = serde_json::json!({"settings": settings, "steps_done": steps, "seconds": secs,
+        "base": cfg.base,
         "train_clips": train.len(), "val_clips": val.len(),
         "final_loss_ema": ema});
+    let mut info = info;
+    if let Some(m) = &init {
+        // Lineage: the parent's own training record (with its parents), the
+        // time of the whole line, and every licence that touched the weights.
+        let parent = &m.manifest.training;
+        let before = parent["total_seconds"]
+            .as_f64()
+            .or_else(|| parent["seconds"].as_f64())
+            .unwrap_or(0.0);
+        training["parent"] = parent.clone();
+        training["total_seconds"] = serde_json::json!(before + secs);
+        for l in &m.manifest.data.licences {
+            if !info.licences.contains(l) {
+                info.licences.push(l.clone());
+            }
+        }
+    }
     let mut manifest = ib::export(&net, info, Default::default(), training, &a.out)?;
     let model = Inbetweener::load(&a.out)?;
     let parity = ib::parity(&net, &model, &mut rng)?;
@@ -118,6 +141,10 @@ pub(crate) fn inbetween(a: InbetweenArgs) -> Result<()> {
         metrics.insert(
             format!("val_bezier_avg_cm2_s{}", r.spacing),
             r.bezier_avg_cm2,
+        );
+        metrics.insert(
+            format!("val_catmull_rom_cm2_s{}", r.spacing),
+            r.catmull_rom_cm2,
         );
         metrics.insert(format!("val_learned_cm2_s{}", r.spacing), r.learned_cm2);
     }
@@ -136,11 +163,19 @@ pub(crate) fn inbetween(a: InbetweenArgs) -> Result<()> {
 
 pub(crate) fn print_inbetween_rows(title: &str, rows: &[choreo::train::inbetween::EvalRow]) {
     println!("{title}: held-out MSE on FK positions, cm² (mean over clips)");
-    println!("spacing  clips    slerp  bezier-avg  learned  (bezier fitted to the clip)");
+    println!(
+        "spacing  clips    slerp  bezier-avg  catmull-rom  learned  (bezier fitted to the clip)"
+    );
     for r in rows {
         println!(
-            "{:>7}  {:>5}  {:>7.3}  {:>10.3}  {:>7.3}  ({:.3})",
-            r.spacing, r.clips, r.slerp_cm2, r.bezier_avg_cm2, r.learned_cm2, r.bezier_fit_cm2
+            "{:>7}  {:>5}  {:>7.3}  {:>10.3}  {:>11.3}  {:>7.3}  ({:.3})",
+            r.spacing,
+            r.clips,
+            r.slerp_cm2,
+            r.bezier_avg_cm2,
+            r.catmull_rom_cm2,
+            r.learned_cm2,
+            r.bezier_fit_cm2
         );
     }
 }
