@@ -332,6 +332,23 @@ fn corrupt_checkpoint_and_empty_corpus_are_clear_errors() {
     assert!(e.contains("empty corpus"), "{e}");
 }
 
+/// Export an in-betweener to a fresh folder and load it back in tract.
+fn export_inbetweener(
+    net: &choreo::train::inbetween::InbetweenNet,
+) -> (tempfile::TempDir, choreo::lm::inbetween::Inbetweener) {
+    let dir = tempfile::tempdir().unwrap();
+    choreo::train::inbetween::export(
+        net,
+        DataInfo::default(),
+        Default::default(),
+        serde_json::json!({}),
+        dir.path(),
+    )
+    .unwrap();
+    let model = choreo::lm::inbetween::Inbetweener::load(dir.path()).unwrap();
+    (dir, model)
+}
+
 /// An in-betweener's base travels in its manifest: a fresh model (its output
 /// layer starts at zero, so its residual is zero) rebuilds exactly the
 /// Catmull-Rom spline when its base is `catmull-rom`, exactly SLERP when it
@@ -361,16 +378,7 @@ fn inbetweener_base_is_kept_and_used() {
             base,
         };
         let net = ib::InbetweenNet::new(cfg.clone(), &Device::Cpu).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        ib::export(
-            &net,
-            DataInfo::default(),
-            Default::default(),
-            serde_json::json!({}),
-            dir.path(),
-        )
-        .unwrap();
-        let model = Inbetweener::load(dir.path()).unwrap();
+        let (dir, model) = export_inbetweener(&net);
         assert_eq!(model.config().base, base);
         let r = model.rebuild(&m, &keys).unwrap();
         let gap = r
@@ -478,29 +486,11 @@ fn inbetweener_export_parity_rebuild_and_bad_manifests() {
         .unwrap();
     assert!(after < 0.5 * before, "loss {before} → {after}");
 
-    let dir = tempfile::tempdir().unwrap();
-    ib::export(
-        &net,
-        DataInfo::default(),
-        Default::default(),
-        serde_json::json!({}),
-        dir.path(),
-    )
-    .unwrap();
-    let model = Inbetweener::load(dir.path()).unwrap();
+    let (dir, model) = export_inbetweener(&net);
     let d = ib::parity(&net, &model, &mut rng).unwrap();
     assert!(d < 1e-4, "tract vs candle {d}");
     ib::jitter(&net, &mut rng).unwrap();
-    let dir2 = tempfile::tempdir().unwrap();
-    ib::export(
-        &net,
-        DataInfo::default(),
-        Default::default(),
-        serde_json::json!({}),
-        dir2.path(),
-    )
-    .unwrap();
-    let jittered = Inbetweener::load(dir2.path()).unwrap();
+    let (_dir2, jittered) = export_inbetweener(&net);
     let d = ib::parity(&net, &jittered, &mut rng).unwrap();
     assert!(d < 1e-4, "tract vs candle after jitter {d}");
 
