@@ -215,8 +215,8 @@ async fn websocket_generate_streams_what_rest_returns_and_stops_with_the_client(
     }
 
     // With labels, the stream starts from the style exemplar the one-shot
-    // call names.
-    let labelled = json!({"labels": {"genre": "BR"}, "frames": 2, "sampling": {"seed": 3}});
+    // call names, and with the same sampling (defaults filled in).
+    let labelled = json!({"labels": {"style": "angry"}, "frames": 2, "sampling": {"seed": 3}});
     let mut ws = connect(h, "/v1/generate/ws").await;
     ws.send(Message::Text(labelled.to_string().into()))
         .await
@@ -229,6 +229,11 @@ async fn websocket_generate_streams_what_rest_returns_and_stops_with_the_client(
         start_msg["start"]["exemplar"], rest["exemplar"],
         "{start_msg}"
     );
+    assert_eq!(
+        start_msg["start"]["sampling"], rest["sampling"],
+        "{start_msg}"
+    );
+    assert_eq!(rest["sampling"]["max_jump"], 24, "{rest}");
     drop(ws);
 
     // Not JSON: an error naming the body, then the close.

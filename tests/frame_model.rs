@@ -298,9 +298,37 @@ fn bad_frame_manifests_are_clear_errors() {
         e.contains("local.onnx") || e.contains("local_sha256"),
         "{e}"
     );
+    // Per-kind max_jump defaults: a kind the vocabulary lacks and a cap out
+    // of range are start-up errors naming the field; the smallest listed
+    // cap of a request's kinds applies, the recommended one without any.
+    std::fs::write(&mf, &text).unwrap();
+    let dir3 = export(&net, &v);
+    let mf3 = dir3.path().join("manifest.json");
+    let with = |extra: serde_json::Value| {
+        let mut j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&mf3).unwrap()).unwrap();
+        j["max_jump_by_kind"] = extra;
+        std::fs::write(&mf3, j.to_string()).unwrap();
+        MotionModel::load(dir3.path())
+    };
+    let kinds: Vec<String> = v.labels.keys().cloned().collect();
+    for bad in [
+        serde_json::json!({"tempo": 24}),
+        serde_json::json!({kinds[0].clone(): 0}),
+        serde_json::json!({kinds[0].clone(): 181}),
+    ] {
+        let e = with(bad.clone()).err().unwrap().to_string();
+        assert!(e.contains("max_jump_by_kind"), "{bad}: {e}");
+    }
+    let m3 = with(serde_json::json!({kinds[0].clone(): 24})).unwrap();
+    let other = "genre".to_string();
+    assert_eq!(m3.default_max_jump([&kinds[0]]), 24);
+    assert_eq!(m3.default_max_jump([&other, &kinds[0]]), 24);
+    let recommended = choreo::lm::generate::RECOMMENDED.max_jump;
+    assert_eq!(m3.default_max_jump([&other]), recommended);
+    assert_eq!(m3.default_max_jump(&Vec::<String>::new()), recommended);
     let mut labels = Labels::new();
     labels.insert("style".into(), "furious".into());
-    std::fs::write(&mf, &text).unwrap();
     let dir2 = export(&net, &v);
     let model = MotionModel::load(dir2.path()).unwrap();
     let e = model

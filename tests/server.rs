@@ -828,6 +828,50 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         );
     }
 
+    // A request naming no max_jump gets the model's default for its labels'
+    // kinds (the bundled manifest: 24 for Bandai's style and content, else
+    // the recommended 48), and the answer says which sampling ran.
+    for (labels, sampling, want) in [
+        (json!({"style": "angry"}), json!(null), 24),
+        (json!({"genre": "BR"}), json!(null), 48),
+        (
+            json!({"style": "angry", "genre": "BR"}),
+            json!({"seed": 3}),
+            24,
+        ),
+        (json!({"style": "angry"}), json!({"max_jump": 30}), 30),
+    ] {
+        let mut req = json!({"labels": labels, "frames": 4});
+        if !sampling.is_null() {
+            req["sampling"] = sampling;
+        }
+        let (status, r) =
+            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
+                .await
+                .unwrap();
+        assert_eq!(status, 200, "{r}");
+        let s = &r["sampling"];
+        assert_eq!(s["max_jump"], want, "{labels}: {s}");
+        assert_eq!(
+            (s["temperature"].as_f64(), s["keep_near"].as_u64()),
+            (Some(1.0), Some(2)),
+            "{s}"
+        );
+    }
+    let mut style = std::collections::HashMap::new();
+    style.insert("style".to_string(), "angry".to_string());
+    let g = client
+        .generate(pb::GenerateRequest {
+            labels: style,
+            frames: 4,
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let s = g.sampling.expect("gRPC answer's sampling");
+    assert_eq!((s.max_jump, s.keep_near, s.temperature), (24, 2, 1.0));
+
     // Streaming gives the one-shot frames, one message each.
     let mut stream = client.generate_stream(greq).await.unwrap().into_inner();
     let mut frames = Vec::new();
@@ -968,15 +1012,16 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .await
     .unwrap();
     for want in [
-        // The prompt request, the top_p 0, keep_near and max_jump ones; the
-        // 400s: the bad exemplar, keep_near 65, max_jump 181, the bad label
-        // and the over-long request; over gRPC the prompt request, best of
-        // 3, steered, root model and feet, exemplar none, top_p 0, keep_near
-        // 1 and max_jump 2; a steered stream, a feet stream, and a stream
-        // asking for 2 candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 4",
+        // The prompt request, the top_p 0, keep_near and max_jump ones, the
+        // four per-kind max_jump defaults; the 400s: the bad exemplar,
+        // keep_near 65, max_jump 181, the bad label and the over-long
+        // request; over gRPC the prompt request, best of 3, steered, root
+        // model and feet, exemplar none, top_p 0, keep_near 1, max_jump 2
+        // and the style default; a steered stream, a feet stream, and a
+        // stream asking for 2 candidates refused.
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 8",
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 5",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 9",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 10",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 3",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",

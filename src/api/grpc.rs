@@ -62,6 +62,15 @@ impl Choreo for ChoreoGrpc {
                 label_probability: c.label_probability,
                 rank_every: c.rank_every,
             }),
+            sampling: Some(pb::Sampling {
+                temperature: r.sampling.temperature,
+                top_k: r.sampling.top_k as u32,
+                top_p: r.sampling.top_p,
+                seed: r.sampling.seed,
+                guidance: r.sampling.guidance,
+                keep_near: r.sampling.keep_near,
+                max_jump: r.sampling.max_jump,
+            }),
         }))
     }
 

@@ -353,6 +353,7 @@ async fn generate(
         real_time_factor: r.real_time_factor,
         exemplar: r.exemplar,
         chosen: r.chosen,
+        sampling: r.sampling,
     }))
 }
 

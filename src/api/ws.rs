@@ -117,16 +117,16 @@ async fn generate_socket(state: Arc<Choreo>, mut socket: WebSocket, who: service
     let rx = async {
         let (skeleton, fps) = lm::stream_format(&state)?;
         let s = lm::generate_stream(&state, body.params()?, &who).await?;
-        Ok::<_, ApiError>((skeleton, fps, s.exemplar, s.frames))
+        Ok::<_, ApiError>((skeleton, fps, s.exemplar, s.sampling, s.frames))
     }
     .await;
-    let (skeleton, fps, exemplar, mut rx) = match rx {
+    let (skeleton, fps, exemplar, sampling, mut rx) = match rx {
         Ok(x) => x,
         Err(e) => return fail(socket, e).await,
     };
     if !send(
         &mut socket,
-        &json!({"start": {"skeleton": skeleton, "fps": fps, "exemplar": exemplar}}),
+        &json!({"start": {"skeleton": skeleton, "fps": fps, "exemplar": exemplar, "sampling": sampling}}),
     )
     .await
     {

@@ -74,7 +74,11 @@ pub fn run(
     let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
     let samplings = samplings
         .iter()
-        .map(|s| parse_sampling(s).map(|sm| Sampling { seed, ..sm }))
+        .map(|s| match s.strip_suffix(":auto") {
+            Some(head) => format!("{head}:{}", m.default_max_jump([&labels.to_string()])),
+            None => s.clone(),
+        })
+        .map(|s| parse_sampling(&s).map(|sm| Sampling { seed, ..sm }))
         .collect::<Result<Vec<_>>>()?;
     let exemplar_modes = match exemplar {
         "none" => vec![false],

@@ -229,6 +229,13 @@ pub struct FrameManifest {
     pub data: super::manifest::DataInfo,
     pub metrics: std::collections::BTreeMap<String, f64>,
     pub training: serde_json::Value,
+    /// The `max_jump` a request gets when it names none, per label kind it
+    /// asks for (the smallest of its kinds listed; none listed: the
+    /// recommended sampling's). The corpora a model learns from move
+    /// differently, and `choreo eval generate` scores the caps per corpus
+    /// (README, "Sampling defaults per label kind").
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub max_jump_by_kind: std::collections::BTreeMap<String, u32>,
 }
 
 pub const FRAME_KIND: &str = "motion-frame-lm";
@@ -329,6 +336,22 @@ impl FrameManifest {
                     m.vocabulary.frame_len() - 1
                 ),
             ));
+        }
+        for (kind, &j) in &m.max_jump_by_kind {
+            if !m.vocabulary.labels.contains_key(kind) {
+                return Err(super::LmError::invalid(
+                    &name,
+                    "max_jump_by_kind",
+                    format!("'{kind}' is not a label kind of the vocabulary"),
+                ));
+            }
+            if !(1..=180).contains(&j) {
+                return Err(super::LmError::invalid(
+                    &name,
+                    "max_jump_by_kind",
+                    format!("{kind}: {j} (want 1 to 180 bins)"),
+                ));
+            }
         }
         let (_, g) =
             super::manifest::read_onnx_checked(&file, &name, &m.global_onnx, &m.global_sha256)?;

@@ -91,6 +91,21 @@ impl MotionModel {
         classes.iter().map(|(k, _)| k.clone()).collect()
     }
 
+    /// The `max_jump` for a request that names none: the smallest the
+    /// manifest lists for the label kinds asked for (`max_jump_by_kind`,
+    /// frame model), else the recommended sampling's.
+    pub fn default_max_jump<'a>(&self, kinds: impl IntoIterator<Item = &'a String>) -> u32 {
+        let recommended = super::generate::RECOMMENDED.max_jump;
+        match self {
+            MotionModel::Flat(_) => recommended,
+            MotionModel::Frame(s) => kinds
+                .into_iter()
+                .filter_map(|k| s.manifest.max_jump_by_kind.get(k).copied())
+                .min()
+                .unwrap_or(recommended),
+        }
+    }
+
     /// A generation from these labels, continuing `seed_tokens` (whole
     /// frames).
     pub fn generator(

@@ -52,6 +52,10 @@ pub struct GenerateParams {
     /// A motion the generation continues.
     pub seed_motion: Option<MotionInput>,
     pub sampling: Sampling,
+    /// Whether the request named `max_jump`; if not, the model's default
+    /// for the label kinds asked for replaces `sampling.max_jump`
+    /// ([`MotionModel::default_max_jump`]).
+    pub max_jump_named: bool,
     /// `auto` or empty (a style exemplar of the labels seeds a generation
     /// that has labels and no seed motion), or `none`.
     pub exemplar: String,
@@ -133,11 +137,14 @@ impl GenerateJob {
 /// Validates a request and sets the generation up (cheap: no model step).
 pub async fn generate_job(
     state: &Choreo,
-    p: GenerateParams,
+    mut p: GenerateParams,
     who: &auth::Principal,
 ) -> Result<GenerateJob, ApiError> {
     let session = model(state)?;
     let vocab = session.vocabulary();
+    if !p.max_jump_named {
+        p.sampling.max_jump = session.default_max_jump(p.labels.keys());
+    }
     if p.frames > MAX_GENERATE_FRAMES {
         return Err(ApiError::invalid(
             "frames",
@@ -300,6 +307,36 @@ pub struct GenerateReport {
     pub exemplar: Option<ExemplarUsed>,
     /// Best of N, when more than one candidate was made.
     pub chosen: Option<ChosenCandidate>,
+    /// The sampling the generation ran with, defaults filled in.
+    pub sampling: SamplingUsed,
+}
+
+/// A generation's sampling as its answer reports it: every setting, the
+/// defaults a request left out filled in (so a client sees, e.g., the
+/// `max_jump` its labels' corpus gets).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct SamplingUsed {
+    pub temperature: f64,
+    pub top_k: usize,
+    pub top_p: f64,
+    pub seed: u64,
+    pub guidance: f64,
+    pub keep_near: u32,
+    pub max_jump: u32,
+}
+
+impl From<&Sampling> for SamplingUsed {
+    fn from(s: &Sampling) -> SamplingUsed {
+        SamplingUsed {
+            temperature: s.temperature,
+            top_k: s.top_k,
+            top_p: s.top_p,
+            seed: s.seed,
+            guidance: s.guidance,
+            keep_near: s.keep_near,
+            max_jump: s.max_jump,
+        }
+    }
 }
 
 /// Which of several candidates a best-of-N generation returned.
@@ -373,6 +410,7 @@ pub async fn generate(
                 real_time_factor: job.frames as f64 / vocab.fps / secs.max(1e-9),
                 exemplar: job.exemplar.clone(),
                 chosen,
+                sampling: SamplingUsed::from(&job.sampling),
             };
             Ok((m, report))
         })
@@ -404,6 +442,8 @@ pub fn stream_format(state: &Choreo) -> Result<(String, f64), ApiError> {
 /// frames.
 pub struct FrameStream {
     pub exemplar: Option<ExemplarUsed>,
+    /// The sampling it runs with, defaults filled in.
+    pub sampling: SamplingUsed,
     pub frames: mpsc::Receiver<Result<StreamFrame, ApiError>>,
 }
 
@@ -423,6 +463,7 @@ pub async fn generate_stream(
     }
     let mut job = generate_job(state, p, who).await?;
     let exemplar = job.exemplar.clone();
+    let sampling = SamplingUsed::from(&job.sampling);
     let permit = state
         .workers
         .clone()
@@ -456,6 +497,7 @@ pub async fn generate_stream(
     });
     Ok(FrameStream {
         exemplar,
+        sampling,
         frames: rx,
     })
 }

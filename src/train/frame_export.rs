@@ -262,6 +262,7 @@ pub fn export(
         data,
         metrics,
         training,
+        max_jump_by_kind: Default::default(),
     };
     m.save(dir)?;
     Ok(m)

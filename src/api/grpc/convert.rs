@@ -126,6 +126,8 @@ pub(super) fn generate_params(
             .seed_motion
             .map(|p| source("seed_motion", Some(p)))
             .transpose()?,
+        // proto3: 0 = not named.
+        max_jump_named: r.sampling.as_ref().is_some_and(|s| s.max_jump != 0),
         sampling: sampling(r.sampling),
         exemplar: r.exemplar,
         candidates: r.candidates,

@@ -188,7 +188,8 @@ pub struct SamplingJson {
     /// explicit temperature.
     pub keep_near: Option<u32>,
     /// No slot moves more than this many bins a frame (frame model);
-    /// absent = the recommended value, 0 = no limit.
+    /// absent = the model's default for the label kinds asked for
+    /// (`MotionModel::default_max_jump`), 0 = no limit.
     pub max_jump: Option<u32>,
 }
 
@@ -263,6 +264,7 @@ impl GenerateBody {
                 .map(|x| source("seed_motion", Some(x)))
                 .transpose()?,
             sampling: self.sampling.to_sampling(),
+            max_jump_named: self.sampling.max_jump.is_some(),
             exemplar: self.exemplar,
             candidates: self.candidates,
             rank_every: self.rank_every,

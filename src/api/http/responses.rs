@@ -131,6 +131,8 @@ pub struct GenerateResponse {
     /// Best of N: which candidate came back, when more than one was made.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub chosen: Option<service::generate::ChosenCandidate>,
+    /// The sampling it ran with, defaults filled in.
+    pub sampling: service::generate::SamplingUsed,
 }
 
 /// One label's probability.
