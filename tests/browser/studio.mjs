@@ -264,6 +264,10 @@ try {
     check(results.generate_exemplar, "a labelled generation names no style exemplar");
     check((await page.textContent("#g-status")).includes("style exemplar"), "the status does not name the exemplar");
   }
+  // The stream's start names the sampling that runs (defaults filled in), and the page shows it.
+  results.generate_sampling = await page.evaluate(() => window.__studio.sampling);
+  check(results.generate_sampling && Number.isInteger(results.generate_sampling.max_jump), "the stream's start names no sampling");
+  check((await page.textContent("#g-status")).includes("max jump"), "the status does not show the sampling");
   check(!(await page.isDisabled("#g-save")), "the result cannot be downloaded");
   const [dlg] = await Promise.all([page.waitForEvent("download"), page.click("#g-save")]);
   const gen = JSON.parse(readFileSync(await dlg.path(), "utf8"));

@@ -435,7 +435,11 @@ async function generate() {
       // The style exemplar the model continues (context only, not shown).
       const ex = msg.start.exemplar;
       exemplarNote = ex ? ` · continuing ${ex.seconds.toFixed(1)} s of ${ex.source} (style exemplar)` : "";
+      // The sampling that runs, the server's defaults filled in.
+      const s = msg.start.sampling;
+      if (s) exemplarNote += ` · t ${s.temperature}, top-p ${s.top_p}, keep ±${s.keep_near}, max jump ${s.max_jump}`;
       window.__studio.exemplar = ex || null;
+      window.__studio.sampling = s || null;
     }
     if (msg.frame && timing.frame === undefined) timing.frame = performance.now() - clicked;
     if (msg.error) {
