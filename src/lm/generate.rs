@@ -20,7 +20,7 @@ use std::sync::Arc;
 /// How tokens are drawn: greedy when `temperature` is 0 (the thesis's
 /// choice), else softmax at `temperature`, keeping the `top_k` most likely
 /// (0 = all) and the smallest set reaching probability `top_p` (1 = all).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Sampling {
     pub temperature: f64,
     pub top_k: usize,

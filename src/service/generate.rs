@@ -308,35 +308,7 @@ pub struct GenerateReport {
     /// Best of N, when more than one candidate was made.
     pub chosen: Option<ChosenCandidate>,
     /// The sampling the generation ran with, defaults filled in.
-    pub sampling: SamplingUsed,
-}
-
-/// A generation's sampling as its answer reports it: every setting, the
-/// defaults a request left out filled in (so a client sees, e.g., the
-/// `max_jump` its labels' corpus gets).
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct SamplingUsed {
-    pub temperature: f64,
-    pub top_k: usize,
-    pub top_p: f64,
-    pub seed: u64,
-    pub guidance: f64,
-    pub keep_near: u32,
-    pub max_jump: u32,
-}
-
-impl From<&Sampling> for SamplingUsed {
-    fn from(s: &Sampling) -> SamplingUsed {
-        SamplingUsed {
-            temperature: s.temperature,
-            top_k: s.top_k,
-            top_p: s.top_p,
-            seed: s.seed,
-            guidance: s.guidance,
-            keep_near: s.keep_near,
-            max_jump: s.max_jump,
-        }
-    }
+    pub sampling: Sampling,
 }
 
 /// Which of several candidates a best-of-N generation returned.
@@ -410,7 +382,7 @@ pub async fn generate(
                 real_time_factor: job.frames as f64 / vocab.fps / secs.max(1e-9),
                 exemplar: job.exemplar.clone(),
                 chosen,
-                sampling: SamplingUsed::from(&job.sampling),
+                sampling: job.sampling.clone(),
             };
             Ok((m, report))
         })
@@ -443,7 +415,7 @@ pub fn stream_format(state: &Choreo) -> Result<(String, f64), ApiError> {
 pub struct FrameStream {
     pub exemplar: Option<ExemplarUsed>,
     /// The sampling it runs with, defaults filled in.
-    pub sampling: SamplingUsed,
+    pub sampling: Sampling,
     pub frames: mpsc::Receiver<Result<StreamFrame, ApiError>>,
 }
 
@@ -463,7 +435,7 @@ pub async fn generate_stream(
     }
     let mut job = generate_job(state, p, who).await?;
     let exemplar = job.exemplar.clone();
-    let sampling = SamplingUsed::from(&job.sampling);
+    let sampling = job.sampling.clone();
     let permit = state
         .workers
         .clone()

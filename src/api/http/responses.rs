@@ -132,7 +132,7 @@ pub struct GenerateResponse {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub chosen: Option<service::generate::ChosenCandidate>,
     /// The sampling it ran with, defaults filled in.
-    pub sampling: service::generate::SamplingUsed,
+    pub sampling: crate::lm::Sampling,
 }
 
 /// One label's probability.
