@@ -14,7 +14,7 @@ pub(crate) fn inbetween(a: InbetweenArgs) -> Result<()> {
         d_ff: 4 * a.d_model,
         ln_eps: 1e-5,
         condition: None,
-        base: a.base,
+        base: a.base.unwrap_or_default(),
     };
     let dirs = choreo::train::data::corpus_dirs(&a.data.data, &a.data.corpora)?;
     let (motions, info) = choreo::train::data::read_motions(&dirs)?;
@@ -33,10 +33,10 @@ pub(crate) fn inbetween(a: InbetweenArgs) -> Result<()> {
     };
     let init = a.init.as_deref().map(Inbetweener::load).transpose()?;
     let cfg = match &init {
-        // The parent's architecture and conditioning; the base is this run's
-        // (a SLERP model can be fine-tuned onto Catmull-Rom).
+        // The parent's architecture and conditioning; its base unless this
+        // run names one (a SLERP model can be fine-tuned onto Catmull-Rom).
         Some(m) => InbetweenConfig {
-            base: a.base,
+            base: a.base.unwrap_or(m.manifest.config.base),
             ..m.manifest.config.clone()
         },
         None => InbetweenConfig { condition, ..cfg },

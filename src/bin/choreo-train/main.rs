@@ -353,9 +353,10 @@ struct InbetweenArgs {
     #[arg(long)]
     condition: Option<String>,
     /// The in-betweens the model corrects: slerp (thesis 001 §3.5.3) or
-    /// catmull-rom (a spline through the keyframes).
-    #[arg(long, value_enum, default_value_t = choreo::lm::inbetween::Base::Slerp)]
-    base: choreo::lm::inbetween::Base,
+    /// catmull-rom (a spline through the keyframes). Default: the --init
+    /// model's, else slerp.
+    #[arg(long, value_enum)]
+    base: Option<choreo::lm::inbetween::Base>,
     #[arg(long, default_value_t = 1500)]
     steps: usize,
     #[arg(long, default_value_t = 16)]
