@@ -109,7 +109,7 @@ impl Choreo for ChoreoGrpc {
             &self.state,
             &labels,
             &first.prompt_joints,
-            sampling(first.sampling),
+            (sampling(first.sampling), max_jump_named(&first.sampling)),
         )?;
         let (frames_in, frames_out) = service::generate::duet(session);
         tokio::spawn(async move {

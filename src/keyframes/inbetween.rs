@@ -136,6 +136,16 @@ fn render(
     keys: &[usize],
     ctrl: impl Fn(usize, usize, usize) -> (f64, f64),
 ) -> Motion {
+    from_channels(m, &render_series(x, keys, ctrl))
+}
+
+/// One cubic Bézier per segment and channel: P0 and P3 the keyframes, P1
+/// and P2 from `ctrl(a, b, channel)`.
+fn render_series(
+    x: &Series,
+    keys: &[usize],
+    ctrl: impl Fn(usize, usize, usize) -> (f64, f64),
+) -> Series {
     let mut out = x.clone();
     let ch = x.channels;
     for w in keys.windows(2) {
@@ -149,7 +159,7 @@ fn render(
             }
         }
     }
-    from_channels(m, &out)
+    out
 }
 
 /// Cubic Bézier per segment with least-squares inner control points (uses
@@ -253,22 +263,14 @@ fn nearest_branch(v: Vec3, hint: Vec3) -> Vec3 {
 /// increasing, first 0, last the final frame).
 pub fn catmull_rom_series(x: &Series, keys: &[usize]) -> Series {
     let tangents = key_tangents(x, keys);
-    let mut out = x.clone();
-    let ch = x.channels;
-    for (i, w) in keys.windows(2).enumerate() {
-        let (a, b) = (w[0], w[1]);
+    let at = |k: usize| keys.binary_search(&k).expect("a keyframe");
+    render_series(x, keys, |a, b, c| {
         let len = (b - a) as f64;
-        for c in 0..ch {
-            let (p0, p3) = (x.row(a)[c], x.row(b)[c]);
-            let p1 = p0 + tangents[i][c] * len / 3.0;
-            let p2 = p3 - tangents[i + 1][c] * len / 3.0;
-            for t in a + 1..b {
-                let bw = bern((t - a) as f64 / len);
-                out.data[t * ch + c] = bw[0] * p0 + bw[1] * p1 + bw[2] * p2 + bw[3] * p3;
-            }
-        }
-    }
-    out
+        (
+            x.row(a)[c] + tangents[at(a)][c] * len / 3.0,
+            x.row(b)[c] - tangents[at(b)][c] * len / 3.0,
+        )
+    })
 }
 
 /// Per-channel control-point offsets from the chord's thirds, averaged over

@@ -134,6 +134,15 @@ impl GenerateJob {
     }
 }
 
+/// A request that named no `max_jump` gets the model's default for the
+/// label kinds it asks for ([`MotionModel::default_max_jump`]); generate,
+/// its streams and the duet alike.
+fn model_max_jump(session: &MotionModel, labels: &Labels, s: &mut Sampling, named: bool) {
+    if !named {
+        s.max_jump = session.default_max_jump(labels.keys());
+    }
+}
+
 /// Validates a request and sets the generation up (cheap: no model step).
 pub async fn generate_job(
     state: &Choreo,
@@ -142,9 +151,7 @@ pub async fn generate_job(
 ) -> Result<GenerateJob, ApiError> {
     let session = model(state)?;
     let vocab = session.vocabulary();
-    if !p.max_jump_named {
-        p.sampling.max_jump = session.default_max_jump(p.labels.keys());
-    }
+    model_max_jump(&session, &p.labels, &mut p.sampling, p.max_jump_named);
     if p.frames > MAX_GENERATE_FRAMES {
         return Err(ApiError::invalid(
             "frames",
@@ -486,9 +493,11 @@ impl DuetSession {
         state: &Choreo,
         labels: &Labels,
         joints: &[String],
-        sampling: Sampling,
+        (mut sampling, max_jump_named): (Sampling, bool),
     ) -> Result<DuetSession, ApiError> {
-        let duet = crate::lm::duet::Duet::new(model(state)?, labels, joints, sampling)?;
+        let session = model(state)?;
+        model_max_jump(&session, labels, &mut sampling, max_jump_named);
+        let duet = crate::lm::duet::Duet::new(session, labels, joints, sampling)?;
         let permit = state
             .workers
             .clone()

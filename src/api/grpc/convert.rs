@@ -79,6 +79,11 @@ pub fn motion_pb(m: &Motion) -> pb::Motion {
     }
 }
 
+/// Whether a request named its `max_jump` (proto3: 0 = not named).
+pub(super) fn max_jump_named(s: &Option<pb::Sampling>) -> bool {
+    s.as_ref().is_some_and(|s| s.max_jump != 0)
+}
+
 /// A request's sampling; none named (absent, or only a seed) = the
 /// recommended setting, as over REST.
 pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
@@ -126,8 +131,7 @@ pub(super) fn generate_params(
             .seed_motion
             .map(|p| source("seed_motion", Some(p)))
             .transpose()?,
-        // proto3: 0 = not named.
-        max_jump_named: r.sampling.as_ref().is_some_and(|s| s.max_jump != 0),
+        max_jump_named: max_jump_named(&r.sampling),
         sampling: sampling(r.sampling),
         exemplar: r.exemplar,
         candidates: r.candidates,
