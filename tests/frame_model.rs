@@ -207,6 +207,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         guidance: 1.0,
         keep_near: 1,
         max_jump: 0,
+        posture: 0.0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;
@@ -279,6 +280,143 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
     assert_eq!(cls[0].0, "style");
     let total: f64 = cls[0].1.iter().map(|x| x.1).sum();
     assert!((total - 1.0).abs() < 1e-6);
+}
+
+#[test]
+fn posture_pulls_the_joints_toward_the_labels_posture() {
+    use choreo::lm::posture::{Postures, FILE};
+    let v = vocab();
+    let c = corpus(&v);
+    let net = trained(&v, &c, 20);
+    let dir = export(&net, &v);
+    let fl = v.frame_len();
+    let bins = v.bins as f64;
+    let mut labels = Labels::new();
+    labels.insert("style".into(), "happy".into());
+    let plain_s = Sampling {
+        temperature: 1.0,
+        top_p: 0.95,
+        seed: 3,
+        keep_near: 1,
+        ..Sampling::default()
+    };
+    let pulled_s = Sampling {
+        posture: 2.0,
+        ..plain_s.clone()
+    };
+    let n = 120;
+    let gen = |m: &MotionModel, s: &Sampling| -> Vec<u32> {
+        let mut g = m.generator(&labels, &[], s.clone()).unwrap();
+        (0..n)
+            .flat_map(|_| g.next_frame(&vec![None; fl]).unwrap())
+            .collect()
+    };
+    // Without postures.json the pull is refused, naming the field.
+    let model = MotionModel::load(dir.path()).unwrap();
+    let e = model
+        .generator(&labels, &[], pulled_s.clone())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("sampling.posture"), "{e}");
+    let plain = gen(&model, &plain_s);
+    // A slot's mean bin over the clip (the shorter way round for an angle).
+    let slot_mean = |t: &[u32], s: usize, wraps: bool| -> f64 {
+        let xs = t.chunks_exact(fl).map(|f| f[s] as f64);
+        if wraps {
+            let w = std::f64::consts::TAU / bins;
+            let (a, b) = xs.fold((0.0, 0.0), |(a, b), x| {
+                (a + (x * w).cos(), b + (x * w).sin())
+            });
+            b.atan2(a).rem_euclid(std::f64::consts::TAU) / w
+        } else {
+            xs.sum::<f64>() / n as f64
+        }
+    };
+    let dist = |a: f64, b: f64, wraps: bool| {
+        let d = (a - b).abs();
+        if wraps {
+            d.min(bins - d)
+        } else {
+            d
+        }
+    };
+    // Postures fitted on a happy clip, each pulled slot's mean then set an
+    // eighth of the range away from where the plain clip sits.
+    let happy = sine_motion(600, 0.0, "happy");
+    let toks = v.prepare(&happy).and_then(|p| v.encode_motion(&p)).unwrap();
+    let mut p = Postures::fit(
+        &[("happy".into(), happy.labels.clone(), toks)],
+        &v,
+        &["style".into()],
+    );
+    let nj = v.joints.len();
+    let mut targets = Vec::new();
+    for (s, st) in p
+        .labels
+        .get_mut("style")
+        .unwrap()
+        .get_mut("happy")
+        .unwrap()
+        .iter_mut()
+        .enumerate()
+    {
+        if let Some(st) = st {
+            let wraps = s < 3 * nj;
+            let m = slot_mean(&plain, s, wraps);
+            let t = if wraps {
+                (m + bins / 8.0).rem_euclid(bins)
+            } else if m < bins / 2.0 {
+                m + bins / 8.0
+            } else {
+                m - bins / 8.0
+            };
+            st.mean = t;
+            targets.push((s, t, wraps));
+        }
+    }
+    assert!(!targets.is_empty());
+    assert!(
+        targets
+            .iter()
+            .all(|&(s, _, _)| s >= 3 && s != 3 * nj && s != 3 * nj + 1),
+        "the root's rotation and ground velocity are not pulled"
+    );
+    std::fs::write(dir.path().join(FILE), serde_json::to_string(&p).unwrap()).unwrap();
+    let model = MotionModel::load(dir.path()).unwrap();
+    let pulled = gen(&model, &pulled_s);
+    assert_eq!(pulled, gen(&model, &pulled_s), "one seed, one clip");
+    assert_eq!(
+        plain,
+        gen(&model, &plain_s),
+        "posture 0 leaves the draw as it was"
+    );
+    let closer = targets
+        .iter()
+        .filter(|&&(s, t, w)| {
+            dist(slot_mean(&pulled, s, w), t, w) < dist(slot_mean(&plain, s, w), t, w)
+        })
+        .count();
+    assert!(
+        closer * 10 >= targets.len() * 9,
+        "{closer} of {} slots moved toward the labels' posture",
+        targets.len()
+    );
+    // A postures file that does not fit the model is a load error naming the field.
+    let mut bad = p.clone();
+    bad.bins += 1;
+    std::fs::write(dir.path().join(FILE), serde_json::to_string(&bad).unwrap()).unwrap();
+    let e = MotionModel::load(dir.path()).err().unwrap().to_string();
+    assert!(e.contains("postures.json") && e.contains("bins"), "{e}");
+    let mut bad = p.clone();
+    let happy_stats = bad.labels["style"]["happy"].clone();
+    bad.labels
+        .get_mut("style")
+        .unwrap()
+        .insert("angry".into(), happy_stats);
+    std::fs::write(dir.path().join(FILE), serde_json::to_string(&bad).unwrap()).unwrap();
+    let e = MotionModel::load(dir.path()).err().unwrap().to_string();
+    assert!(e.contains("labels.style.angry"), "{e}");
 }
 
 #[test]

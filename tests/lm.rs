@@ -174,6 +174,7 @@ fn streaming_equals_one_shot_and_decodes_to_valid_motion() {
         guidance: 1.0,
         keep_near: 0,
         max_jump: 0,
+        posture: 0.0,
     };
     // 11 frames: the window (4) slides several times.
     let run = |n: usize| {

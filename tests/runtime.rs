@@ -148,6 +148,7 @@ fn an_ort_stream_is_the_one_shot_output_for_one_seed() {
         guidance: 1.0,
         keep_near: 1,
         max_jump: 0,
+        posture: 0.0,
     };
     // Past the context, so the window slides.
     let n = 2 * model.context_frames() + 3;

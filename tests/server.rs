@@ -586,6 +586,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             guidance: 0.0,
             keep_near: 0,
             max_jump: 0,
+            posture: 0.0,
         }),
         exemplar: String::new(),
         candidates: 0,
@@ -784,20 +785,37 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     let gz = gz.output.unwrap().rotations;
     assert!(gz.iter().zip(&zr).all(|(a, b)| (a - b).abs() < 1e-12));
 
-    // keep_near and max_jump over both transports: the same frames; out of
-    // range is a 400 naming the field (gRPC's max_jump 0 = the recommended
-    // limit, as REST's absent field).
-    for (field, ok, bad) in [("keep_near", 1u32, 65u32), ("max_jump", 2, 181)] {
+    // keep_near, max_jump and posture over both transports: the same
+    // frames; out of range is a 400 naming the field (gRPC's max_jump 0 =
+    // the recommended limit, as REST's absent field). The bundled model's
+    // postures.json has the genre's posture.
+    for (field, ok, bad) in [
+        ("keep_near", 1.0, 65.0),
+        ("max_jump", 2.0, 181.0),
+        ("posture", 1.5, 11.0),
+    ] {
         let mut g = greq.clone();
         let gs = g.sampling.as_mut().unwrap();
-        if field == "keep_near" {
-            gs.keep_near = ok;
-        } else {
-            gs.max_jump = ok;
+        let as_json = |x: f64| {
+            if field == "posture" {
+                json!(x)
+            } else {
+                json!(x as u32)
+            }
+        };
+        match field {
+            "keep_near" => gs.keep_near = ok as u32,
+            "max_jump" => gs.max_jump = ok as u32,
+            _ => gs.posture = ok,
         }
         let g = client.generate(g).await.unwrap().into_inner();
+        assert_eq!(
+            g.sampling.as_ref().unwrap().posture,
+            if field == "posture" { ok } else { -1.0 },
+            "{field}: the answer's posture as a request spells it"
+        );
         let mut sampling = json!({"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7});
-        sampling[field] = json!(ok);
+        sampling[field] = as_json(ok);
         let req = json!({
             "labels": {"genre": "BR"}, "frames": 24,
             "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
@@ -816,7 +834,13 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             "{field}"
         );
         assert_ne!(gr, m.rotations, "{field} {ok} changes the draw");
-        let far = json!({"frames": 4, "sampling": {field: bad}});
+        assert_eq!(
+            r["sampling"][field],
+            as_json(ok),
+            "{field}: {}",
+            r["sampling"]
+        );
+        let far = json!({"frames": 4, "sampling": {field: as_json(bad)}});
         let (status, e) =
             tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&far)))
                 .await
@@ -1012,16 +1036,16 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .await
     .unwrap();
     for want in [
-        // The prompt request, the top_p 0, keep_near and max_jump ones, the
-        // four per-kind max_jump defaults; the 400s: the bad exemplar,
-        // keep_near 65, max_jump 181, the bad label and the over-long
-        // request; over gRPC the prompt request, best of 3, steered, root
-        // model and feet, exemplar none, top_p 0, keep_near 1, max_jump 2
-        // and the style default; a steered stream, a feet stream, and a
-        // stream asking for 2 candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 8",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 5",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 10",
+        // The prompt request, the top_p 0, keep_near, max_jump and posture
+        // ones, the four per-kind max_jump defaults; the 400s: the bad
+        // exemplar, keep_near 65, max_jump 181, posture 11, the bad label
+        // and the over-long request; over gRPC the prompt request, best of
+        // 3, steered, root model and feet, exemplar none, top_p 0, keep_near
+        // 1, max_jump 2, posture 1.5 and the style default; a steered
+        // stream, a feet stream, and a stream asking for 2 candidates refused.
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 9",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 6",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 11",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 3",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",

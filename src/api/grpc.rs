@@ -70,6 +70,13 @@ impl Choreo for ChoreoGrpc {
                 guidance: r.sampling.guidance,
                 keep_near: r.sampling.keep_near,
                 max_jump: r.sampling.max_jump,
+                // As a request spells it: off is negative (0 asks for the
+                // recommended pull).
+                posture: if r.sampling.posture == 0.0 {
+                    -1.0
+                } else {
+                    r.sampling.posture
+                },
             }),
         }))
     }

@@ -132,6 +132,9 @@ pub enum Cmd {
     /// real training motion per label value, which seed generations that
     /// ask for labels.
     Exemplars(super::exemplars::ExemplarsArgs),
+    /// Write a frame model's label postures (postures.json): where each
+    /// label's training takes hold every joint, for `sampling.posture`.
+    Postures(super::postures::PosturesArgs),
     /// Serve REST and gRPC (see README: API).
     Serve(choreo::server::ServeConfig),
     /// Token file lines for `serve --tokens`: new random tokens, hashes.

@@ -86,6 +86,7 @@ pub fn run(
             guidance: 1.0,
             keep_near: 0,
             max_jump: 0,
+            posture: 0.0,
         },
     )?;
     let mut lat = Vec::with_capacity(frames);
@@ -124,6 +125,7 @@ pub fn run(
                 guidance: 1.0,
                 keep_near: 0,
                 max_jump: 0,
+                posture: 0.0,
             },
         )?;
         let mut lat = Vec::with_capacity(n);

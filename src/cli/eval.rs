@@ -28,10 +28,10 @@ pub enum EvalCmd {
         per_label: usize,
         #[arg(long, default_value_t = 10.0)]
         seconds: f64,
-        /// Sampling settings, T:K:P[:G[:N[:J]]] (temperature:top_k:top_p
-        /// [:guidance[:keep_near[:max_jump]]]) or greedy; J `auto` takes
-        /// the model's default for the label kind, as a request naming no
-        /// max_jump gets.
+        /// Sampling settings, T:K:P[:G[:N[:J[:W]]]] (temperature:top_k:top_p
+        /// [:guidance[:keep_near[:max_jump[:posture]]]]) or greedy; J `auto`
+        /// takes the model's default for the label kind, as a request naming
+        /// no max_jump gets.
         #[arg(long, value_delimiter = ',', default_values_t = ["greedy", "1:0:1", "0.9:0:0.95", "0.8:0:0.9"].map(String::from).to_vec())]
         sampling: Vec<String>,
         /// Seed each clip with one of the model's style exemplars of the

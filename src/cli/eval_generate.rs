@@ -7,20 +7,21 @@ use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use std::path::{Path, PathBuf};
 
-/// `T:K:P[:G[:N[:J]]]` (temperature, top-k, top-p, guidance, keep_near,
-/// max_jump), or `greedy`.
+/// `T:K:P[:G[:N[:J[:W]]]]` (temperature, top-k, top-p, guidance, keep_near,
+/// max_jump, posture), or `greedy`.
 pub fn parse_sampling(s: &str) -> Result<Sampling> {
     if s == "greedy" {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    let (t, k, p, g, n, j) = match parts[..] {
-        [t, k, p] => (t, k, p, "1", "0", "0"),
-        [t, k, p, g] => (t, k, p, g, "0", "0"),
-        [t, k, p, g, n] => (t, k, p, g, n, "0"),
-        [t, k, p, g, n, j] => (t, k, p, g, n, j),
+    let (t, k, p, g, n, j, w) = match parts[..] {
+        [t, k, p] => (t, k, p, "1", "0", "0", "0"),
+        [t, k, p, g] => (t, k, p, g, "0", "0", "0"),
+        [t, k, p, g, n] => (t, k, p, g, n, "0", "0"),
+        [t, k, p, g, n, j] => (t, k, p, g, n, j, "0"),
+        [t, k, p, g, n, j, w] => (t, k, p, g, n, j, w),
         _ => bail!(
-            "--sampling: '{s}' is not T:K:P[:G[:N[:J]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump]]]) or greedy"
+            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture]]]]) or greedy"
         ),
     };
     let sm = Sampling {
@@ -43,6 +44,9 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         max_jump: j
             .parse()
             .with_context(|| format!("--sampling: max_jump '{j}'"))?,
+        posture: w
+            .parse()
+            .with_context(|| format!("--sampling: posture '{w}'"))?,
     };
     sm.validate()
         .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;
@@ -74,9 +78,14 @@ pub fn run(
     let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
     let samplings = samplings
         .iter()
-        .map(|s| match s.strip_suffix(":auto") {
-            Some(head) => format!("{head}:{}", m.default_max_jump([&labels.to_string()])),
-            None => s.clone(),
+        .map(|s| {
+            // J `auto`: the model's default for the label kind.
+            let j = m.default_max_jump([&labels.to_string()]).to_string();
+            s.split(':')
+                .enumerate()
+                .map(|(i, p)| if i == 5 && p == "auto" { &j[..] } else { p })
+                .collect::<Vec<_>>()
+                .join(":")
         })
         .map(|s| parse_sampling(&s).map(|sm| Sampling { seed, ..sm }))
         .collect::<Result<Vec<_>>>()?;
@@ -147,6 +156,15 @@ pub fn run(
     }
     if rows.iter().any(|r| r.root_in_place) {
         println!("(root held in place on both sides: the real clips have no root trajectory)");
+    }
+    println!("cond acc by 2 s window of the clip (does the label hold?):");
+    for r in &rows {
+        let w: Vec<String> = r
+            .cond_acc_windows
+            .iter()
+            .map(|a| format!("{:.0}", 100.0 * a))
+            .collect();
+        println!("  {}: {} %", r.sampling, w.join(" / "));
     }
     Ok(())
 }

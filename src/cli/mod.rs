@@ -14,6 +14,7 @@ pub mod eval_generate;
 pub mod exemplars;
 pub mod footage;
 pub mod motion;
+pub mod postures;
 pub mod token;
 
 use anyhow::{Context, Result};
@@ -77,6 +78,7 @@ pub fn run(cli: args::Cli) -> anyhow::Result<()> {
         Cmd::Bench { cmd } => bench::run(cmd),
         Cmd::Eval { cmd } => eval::run(cmd),
         Cmd::Exemplars(a) => exemplars::run(a),
+        Cmd::Postures(a) => postures::run(a),
         Cmd::Footage { cmd } => footage::run(cmd),
         Cmd::Token { cmd } => token::run(cmd),
         Cmd::Serve(cfg) => {

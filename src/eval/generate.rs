@@ -66,6 +66,9 @@ pub struct GenRow {
     pub diversity: f64,
     pub diversity_real: f64,
     pub cond_acc: f64,
+    /// The conditioning accuracy on each clip's first, second, … 2 s
+    /// window: whether the label holds as the clip goes on.
+    pub cond_acc_windows: Vec<f64>,
     pub cond_acc_real: f64,
     pub seconds_per_clip: f64,
     /// The real clips have no root trajectory, so both sides were measured
@@ -117,8 +120,13 @@ pub fn sampling_name(s: &Sampling) -> String {
         } else {
             format!(" max_jump={}", s.max_jump)
         };
+        let w = if s.posture == 0.0 {
+            String::new()
+        } else {
+            format!(" posture={}", s.posture)
+        };
         format!(
-            "t={} top_k={} top_p={}{g}{n}{j}",
+            "t={} top_k={} top_p={}{g}{n}{j}{w}",
             s.temperature, s.top_k, s.top_p
         )
     }
@@ -287,6 +295,28 @@ pub fn eval_generate(
         }
         hit as f64 / n.max(1) as f64
     };
+    // The judge's accuracy on each clip's k-th window, k = 0, 1, …: whether
+    // the label holds as the clip goes on.
+    let judge_by_window = |rows: &[(String, &ClipStats)]| -> Vec<f64> {
+        let Some(j) = &judge else { return Vec::new() };
+        let most = rows
+            .iter()
+            .map(|r| r.1.lda_windows.len())
+            .max()
+            .unwrap_or(0);
+        (0..most)
+            .map(|k| {
+                let (mut hit, mut n) = (0usize, 0usize);
+                for (v, s) in rows {
+                    if let Some(w) = s.lda_windows.get(k) {
+                        n += 1;
+                        hit += (all_values.get(j.predict(w)) == Some(v)) as usize;
+                    }
+                }
+                hit as f64 / n.max(1) as f64
+            })
+            .collect()
+    };
     let real_refs: Vec<(String, &ClipStats)> = real.iter().map(|(v, s)| (v.clone(), s)).collect();
     let cond_acc_real = judge_acc(&real_refs);
     let rk: Vec<Vec<f64>> = real.iter().map(|r| r.1.kinetic.clone()).collect();
@@ -412,6 +442,7 @@ pub fn eval_generate(
                 diversity: diversity(&gk, &rk),
                 diversity_real: diversity(&rk, &rk),
                 cond_acc: judge_acc(&refs),
+                cond_acc_windows: judge_by_window(&refs),
                 cond_acc_real,
                 seconds_per_clip: secs,
                 root_in_place: in_place,

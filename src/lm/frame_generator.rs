@@ -42,6 +42,8 @@ pub struct FrameGenerator {
     h: Vec<f32>,
     rng: StdRng,
     sampling: Sampling,
+    /// The labels' posture pull (`sampling.posture`), if any.
+    pull: Option<Arc<super::posture::Pull>>,
     pub produced: usize,
     /// Per class kind (the config's order), the class heads' logits summed
     /// over the frames produced so far: read from the unlabelled track
@@ -78,6 +80,19 @@ impl FrameGenerator {
             ));
         }
         let keep = (c.max_frames / 2).max(1).min(frames.len());
+        let pull = if sampling.posture > 0.0 && !labels.is_empty() {
+            let p = session.postures.as_ref().ok_or_else(|| {
+                LmError::invalid(
+                    "request",
+                    "sampling.posture",
+                    "this model has no label postures (postures.json; choreo postures writes one)",
+                )
+            })?;
+            let joints = session.manifest.vocabulary.joints.len();
+            p.pull(labels, sampling.posture, joints).map(Arc::new)
+        } else {
+            None
+        };
         // Guidance needs labels to steer by and a model trained with the
         // conditioning dropped; otherwise it is plain conditioning.
         let guided = sampling.guidance != 1.0 && !labels.is_empty() && c.cond_every;
@@ -107,6 +122,7 @@ impl FrameGenerator {
             h: Vec::new(),
             rng: StdRng::seed_from_u64(sampling.seed),
             sampling,
+            pull,
             produced: 0,
             cls_sum: c.classes.iter().map(|(_, v)| vec![0.0; v.len()]).collect(),
         };
@@ -143,6 +159,7 @@ impl FrameGenerator {
                 seed,
                 ..self.sampling.clone()
             },
+            pull: self.pull.clone(),
             produced: self.produced,
             cls_sum: self.cls_sum.clone(),
         })
@@ -247,8 +264,8 @@ impl FrameGenerator {
                     &self.sampling,
                     &mut self.rng,
                     c,
-                    out.data(0),
-                    out.data(1),
+                    (out.data(0), out.data(1)),
+                    self.pull.as_ref().map(|p| &p.offsets[s][..]),
                     p1.as_ref().map(|p| p[s]),
                     c.wraps(s),
                 ),
@@ -323,16 +340,39 @@ fn draw(
     sampling: &Sampling,
     rng: &mut StdRng,
     c: &FrameConfig,
-    rel: &[f32],
-    abs: &[f32],
+    (rel, abs): (&[f32], &[f32]),
+    pull: Option<&[f32]>,
     p1: Option<u32>,
     wraps: bool,
 ) -> u32 {
+    // The posture pull: each bin's offset, added to the absolute head and
+    // to the change that reaches the bin.
+    let pulled;
+    let abs = match pull {
+        Some(u) => {
+            pulled = abs.iter().zip(u).map(|(a, b)| a + b).collect::<Vec<f32>>();
+            &pulled[..]
+        }
+        None => abs,
+    };
     let Some(p) = p1 else {
         return sampling.draw(abs, rng) as u32;
     };
-    let (r0, near) = (c.radius as i64, sampling.keep_near as i64);
     let bins = c.bins as i64;
+    let r0 = c.radius as i64;
+    let moved;
+    let rel = match pull {
+        Some(u) => {
+            let mut r = rel.to_vec();
+            for (i, x) in r[..=2 * r0 as usize].iter_mut().enumerate() {
+                *x += u[(p as i64 + i as i64 - r0).clamp(0, bins - 1) as usize];
+            }
+            moved = r;
+            &moved[..]
+        }
+        None => rel,
+    };
+    let near = sampling.keep_near as i64;
     // max_jump: a bin the slot may reach (an angle's the shorter way round). The
     // change window's targets lie within r0 bins, so they need masking
     // only under a limit below r0; the escape only when no bin outside the
@@ -406,14 +446,22 @@ mod tests {
         let (angle, height) = (0, c.slots - 1);
         assert!(c.wraps(angle) && !c.wraps(height) && !c.wraps(c.slots - 3));
         for _ in 0..50 {
-            let a = draw(&sampling, &mut rng, &c, &rel, &abs, Some(2), c.wraps(angle));
+            let a = draw(
+                &sampling,
+                &mut rng,
+                &c,
+                (&rel, &abs),
+                None,
+                Some(2),
+                c.wraps(angle),
+            );
             assert_eq!(a, 358, "an angle may wrap round");
             let h = draw(
                 &sampling,
                 &mut rng,
                 &c,
-                &rel,
-                &abs,
+                (&rel, &abs),
+                None,
                 Some(2),
                 c.wraps(height),
             );

@@ -18,6 +18,8 @@ use std::sync::Arc;
 /// A loaded frame model: the manifest and both graphs, shared by requests.
 pub struct FrameSession {
     pub manifest: FrameManifest,
+    /// The folder's label postures (`postures.json`), if any.
+    pub postures: Option<super::posture::Postures>,
     global: Arc<dyn Graph>,
     local: Arc<dyn Graph>,
 }
@@ -58,8 +60,10 @@ impl FrameSession {
                 f32_shapes: &[],
             },
         )?;
+        let postures = super::posture::Postures::load(path, &manifest.vocabulary)?;
         Ok(FrameSession {
             manifest,
+            postures,
             global,
             local,
         })

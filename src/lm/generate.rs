@@ -42,6 +42,10 @@ pub struct Sampling {
     /// outside its change window), and one jump invites the next: a clip
     /// that starts to jitter rarely recovers.
     pub max_jump: u32,
+    /// Frame model only: the pull of every joint toward where the asked-for
+    /// labels hold it in their training takes ([`super::posture`]; 0 = off;
+    /// needs labels and the model folder's postures.json).
+    pub posture: f64,
 }
 
 impl Default for Sampling {
@@ -54,6 +58,7 @@ impl Default for Sampling {
             guidance: 1.0,
             keep_near: 0,
             max_jump: 0,
+            posture: 0.0,
         }
     }
 }
@@ -79,6 +84,7 @@ pub const RECOMMENDED: Sampling = Sampling {
     guidance: 1.0,
     keep_near: 2,
     max_jump: 48,
+    posture: 0.0,
 };
 
 impl Sampling {
@@ -110,6 +116,13 @@ impl Sampling {
                 "request",
                 "sampling.keep_near",
                 format!("{} (want 0 to 64 bins)", self.keep_near),
+            ));
+        }
+        if !(self.posture.is_finite() && (0.0..=10.0).contains(&self.posture)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.posture",
+                format!("{} (want 0 to 10; 0 = off)", self.posture),
             ));
         }
         if self.max_jump > 180 {

@@ -101,10 +101,17 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.max_jump
     };
+    // proto3 again: 0 = the recommended pull, negative = none.
+    let posture = match s.posture {
+        p if p == 0.0 => r.posture,
+        p if p < 0.0 => 0.0,
+        p => p,
+    };
     if s.temperature == 0.0 && s.top_k == 0 && s.top_p == 0.0 && s.keep_near == 0 {
         return crate::lm::Sampling {
             guidance,
             max_jump,
+            posture,
             ..r
         };
     }
@@ -116,6 +123,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         guidance,
         keep_near: s.keep_near,
         max_jump,
+        posture,
     }
 }
 

@@ -191,6 +191,9 @@ pub struct SamplingJson {
     /// absent = the model's default for the label kinds asked for
     /// (`MotionModel::default_max_jump`), 0 = no limit.
     pub max_jump: Option<u32>,
+    /// The pull toward the labels' postures (frame model; 0 = off);
+    /// absent = the recommended value.
+    pub posture: Option<f64>,
 }
 
 impl SamplingJson {
@@ -207,6 +210,7 @@ impl SamplingJson {
                 guidance,
                 keep_near: self.keep_near.unwrap_or(r.keep_near),
                 max_jump: self.max_jump.unwrap_or(r.max_jump),
+                posture: self.posture.unwrap_or(r.posture),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -217,6 +221,7 @@ impl SamplingJson {
                 guidance,
                 keep_near: self.keep_near.unwrap_or(0),
                 max_jump: self.max_jump.unwrap_or(r.max_jump),
+                posture: self.posture.unwrap_or(r.posture),
             },
         }
     }

@@ -1,0 +1,281 @@
+//! Label postures: per label value, where each value slot of a frame
+//! sits in that label's training sequences (a mean bin μ and a spread σ,
+//! the shorter way round for angles). At sampling, `sampling.posture`
+//! w > 0 adds `−w Σ_labels d(b, μ)² / (2σ²)` to every bin b's logit: the
+//! labels' Gaussian posture as a second expert beside the model, a pull of
+//! each joint toward where the asked-for labels hold it, which the frame
+//! model's own conditioning barely gives (README, "What the labels are
+//! worth"): its clips start in the exemplar's style and drift to the
+//! corpus's average pose within seconds.
+//!
+//! Not pulled: the root joint's rotation (it holds the heading, which a
+//! take chooses freely) and the root's ground velocity (world-frame
+//! travel); the root's height is.
+//!
+//! `postures.json` in a frame model's folder, written by `choreo postures`
+//! from the training side of corpus folders.
+
+use super::LmError;
+use crate::motion::Labels;
+use crate::tokenize::vocab::Vocabulary;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+pub const FILE: &str = "postures.json";
+
+/// The narrowest spread a slot's pull uses (bins): a slot a label never
+/// moves would otherwise pin it.
+pub const MIN_SPREAD: f64 = 3.0;
+
+/// One slot under one label: mean bin and spread (bins), or none where
+/// the slot is not pulled.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct SlotStat {
+    pub mean: f64,
+    pub spread: f64,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Postures {
+    /// Bins per slot and slots per frame (checked at load).
+    pub bins: usize,
+    pub slots: usize,
+    /// Frames each label value's figures come from.
+    pub frames: BTreeMap<String, BTreeMap<String, usize>>,
+    /// kind → value → one entry per slot (`null`: not pulled).
+    pub labels: BTreeMap<String, BTreeMap<String, Vec<Option<SlotStat>>>>,
+}
+
+/// Whether slot `s` is pulled: not the root joint's rotation (slots 0–2),
+/// not the root's ground velocity (the two slots after the joints).
+fn pulled(s: usize, joints: usize) -> bool {
+    s >= 3 && s != 3 * joints && s != 3 * joints + 1
+}
+
+/// Angle slots wrap round (their bins meet at ±180°); the root's slots do not.
+fn wraps(s: usize, joints: usize) -> bool {
+    s < 3 * joints
+}
+
+impl Postures {
+    /// Fits every (kind, value) of `kinds` the vocabulary knows from the
+    /// sequences' frame tokens (`frame_len` a frame, separator last).
+    pub fn fit(
+        sequences: &[(String, Labels, Vec<u32>)],
+        vocab: &Vocabulary,
+        kinds: &[String],
+    ) -> Postures {
+        let fl = vocab.frame_len();
+        let slots = fl - 1;
+        let nj = vocab.joints.len();
+        let bins = vocab.bins;
+        let mut labels = BTreeMap::new();
+        let mut frames = BTreeMap::new();
+        for k in kinds {
+            let Some(values) = vocab.labels.get(k) else {
+                continue;
+            };
+            for v in values {
+                let seqs: Vec<&Vec<u32>> = sequences
+                    .iter()
+                    .filter(|(_, l, _)| l.get(k) == Some(v))
+                    .map(|s| &s.2)
+                    .collect();
+                let n: usize = seqs.iter().map(|t| t.len() / fl).sum();
+                if n == 0 {
+                    continue;
+                }
+                let stats = (0..slots)
+                    .map(|s| {
+                        pulled(s, nj).then(|| {
+                            let xs = seqs
+                                .iter()
+                                .flat_map(|t| t.chunks_exact(fl).map(move |f| f[s] as f64));
+                            slot_stat(xs, bins as f64, wraps(s, nj))
+                        })
+                    })
+                    .collect();
+                labels
+                    .entry(k.clone())
+                    .or_insert_with(BTreeMap::new)
+                    .insert(v.clone(), stats);
+                frames
+                    .entry(k.clone())
+                    .or_insert_with(BTreeMap::new)
+                    .insert(v.clone(), n);
+            }
+        }
+        Postures {
+            bins,
+            slots,
+            frames,
+            labels,
+        }
+    }
+
+    /// The postures of a model folder, if it has them; a file that does
+    /// not fit the model (bins, slots, a label it does not know, a slot
+    /// list of the wrong length or a spread that is not positive) is an
+    /// error naming the field.
+    pub fn load(dir: &Path, vocab: &Vocabulary) -> Result<Option<Postures>, LmError> {
+        let path = dir.join(FILE);
+        if !path.exists() {
+            return Ok(None);
+        }
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(&path).map_err(|e| LmError::Io {
+            file: name.clone(),
+            reason: e.to_string(),
+        })?;
+        let p: Postures = serde_json::from_str(&text)
+            .map_err(|e| LmError::invalid(&name, "postures", e.to_string()))?;
+        p.check(vocab)
+            .map_err(|(f, why)| LmError::invalid(&name, f, why))?;
+        Ok(Some(p))
+    }
+
+    fn check(&self, vocab: &Vocabulary) -> Result<(), (String, String)> {
+        if self.bins != vocab.bins {
+            return Err((
+                "bins".into(),
+                format!("{} but the model has {}", self.bins, vocab.bins),
+            ));
+        }
+        if self.slots + 1 != vocab.frame_len() {
+            return Err((
+                "slots".into(),
+                format!(
+                    "{} but the model's frames have {}",
+                    self.slots,
+                    vocab.frame_len() - 1
+                ),
+            ));
+        }
+        for (k, vs) in &self.labels {
+            let known = vocab.labels.get(k);
+            for (v, stats) in vs {
+                let field = format!("labels.{k}.{v}");
+                if !known.is_some_and(|s| s.contains(v)) {
+                    return Err((field, "a label the model does not know".into()));
+                }
+                if stats.len() != self.slots {
+                    return Err((field, format!("{} slots, want {}", stats.len(), self.slots)));
+                }
+                for (s, st) in stats.iter().enumerate() {
+                    if let Some(st) = st {
+                        let ok = st.spread.is_finite()
+                            && st.spread > 0.0
+                            && st.mean.is_finite()
+                            && (0.0..self.bins as f64).contains(&st.mean);
+                        if !ok {
+                            return Err((
+                                format!("{field}[{s}]"),
+                                format!(
+                                    "mean {} spread {} (want a bin and a positive spread)",
+                                    st.mean, st.spread
+                                ),
+                            ));
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The pull for `labels`, times `weight`: per slot, every bin's logit
+    /// offset `−w Σ_labels d(b, μ)² / (2σ²)` (labels without a posture add
+    /// nothing). None when no asked-for label has one.
+    pub fn pull(&self, labels: &Labels, weight: f64, joints: usize) -> Option<Pull> {
+        let stats: Vec<&Vec<Option<SlotStat>>> = labels
+            .iter()
+            .filter_map(|(k, v)| self.labels.get(k)?.get(v))
+            .collect();
+        if stats.is_empty() {
+            return None;
+        }
+        let bins = self.bins as f64;
+        let offsets = (0..self.slots)
+            .map(|s| {
+                (0..self.bins)
+                    .map(|b| {
+                        let mut x = 0.0;
+                        for st in stats.iter().filter_map(|l| l[s].as_ref()) {
+                            let mut d = (b as f64 - st.mean).abs();
+                            if wraps(s, joints) {
+                                d = d.min(bins - d);
+                            }
+                            let sp = st.spread.max(MIN_SPREAD);
+                            x -= d * d / (2.0 * sp * sp);
+                        }
+                        (weight * x) as f32
+                    })
+                    .collect()
+            })
+            .collect();
+        Some(Pull { offsets })
+    }
+}
+
+/// The asked-for labels' postures as logit offsets: `slots` rows of `bins`.
+#[derive(Clone, Debug)]
+pub struct Pull {
+    pub offsets: Vec<Vec<f32>>,
+}
+
+/// Mean and spread of a slot's bins; for an angle the circular mean (on
+/// the circle of `bins`) and the spread √(−2 ln R) in bins.
+fn slot_stat(xs: impl Iterator<Item = f64>, bins: f64, wraps: bool) -> SlotStat {
+    let (mut n, mut a, mut b) = (0.0, 0.0, 0.0);
+    if wraps {
+        let w = std::f64::consts::TAU / bins;
+        for x in xs {
+            n += 1.0;
+            a += (x * w).cos();
+            b += (x * w).sin();
+        }
+        let r = ((a * a + b * b).sqrt() / n).clamp(1e-12, 1.0);
+        let mean = b.atan2(a).rem_euclid(std::f64::consts::TAU) / w;
+        SlotStat {
+            mean: if mean >= bins { 0.0 } else { mean },
+            spread: ((-2.0 * r.ln()).sqrt() / w).max(MIN_SPREAD),
+        }
+    } else {
+        for x in xs {
+            n += 1.0;
+            a += x;
+            b += x * x;
+        }
+        let mean = a / n;
+        SlotStat {
+            mean,
+            spread: (b / n - mean * mean).max(0.0).sqrt().max(MIN_SPREAD),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn circular_mean_and_spread_go_the_short_way_round() {
+        // Bins 358, 359, 0, 1, 2 of 360: mean 0, not 144.
+        let s = slot_stat([358.0, 359.0, 0.0, 1.0, 2.0].into_iter(), 360.0, true);
+        assert!(s.mean < 0.01 || s.mean > 359.99, "{s:?}");
+        // Small spreads match the plain standard deviation (√2 ≈ 1.41),
+        // floored at MIN_SPREAD.
+        assert_eq!(s.spread, MIN_SPREAD);
+        let wide = slot_stat([340.0, 350.0, 0.0, 10.0, 20.0].into_iter(), 360.0, true);
+        let sd = (200.0_f64 + 100.0 + 0.0 + 100.0 + 400.0) / 5.0;
+        assert!(
+            (wide.spread - sd.sqrt()).abs() < 0.1,
+            "{wide:?} vs {}",
+            sd.sqrt()
+        );
+        let plain = slot_stat([10.0, 20.0, 30.0].into_iter(), 360.0, false);
+        assert!((plain.mean - 20.0).abs() < 1e-12);
+        assert!((plain.spread - (200.0_f64 / 3.0).sqrt()).abs() < 1e-9);
+    }
+}
