@@ -34,6 +34,27 @@ pub struct ExemplarsArgs {
     pub choose: Option<String>,
 }
 
+/// The training side of each corpus folder (the trainer's split), as
+/// (name, labels, frame tokens); says on stderr how many each gave.
+pub fn training_sequences(
+    vocab: &choreo::tokenize::vocab::Vocabulary,
+    data: &[PathBuf],
+) -> Result<Vec<(String, choreo::motion::Labels, Vec<u32>)>> {
+    let mut sequences = Vec::new();
+    for d in data {
+        let (val, train) = read_split(vocab, d, 0.1, &mut |line| eprintln!("{line}"))
+            .with_context(|| format!("--data {}", d.display()))?;
+        eprintln!(
+            "{}: {} training sequences ({} held out, not used)",
+            d.display(),
+            train.len(),
+            val.len()
+        );
+        sequences.extend(train.into_iter().map(|c| (c.name, c.labels, c.tokens)));
+    }
+    Ok(sequences)
+}
+
 pub fn run(a: ExemplarsArgs) -> Result<()> {
     let m =
         MotionModel::load(&a.model).with_context(|| format!("--model {}", a.model.display()))?;
@@ -61,18 +82,7 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
         }
         a.kinds.clone()
     };
-    let mut sequences = Vec::new();
-    for d in &a.data {
-        let (val, train) = read_split(&vocab, d, 0.1, &mut |line| eprintln!("{line}"))
-            .with_context(|| format!("--data {}", d.display()))?;
-        eprintln!(
-            "{}: {} training sequences ({} held out, not used)",
-            d.display(),
-            train.len(),
-            val.len()
-        );
-        sequences.extend(train.into_iter().map(|c| (c.name, c.labels, c.tokens)));
-    }
+    let sequences = training_sequences(&vocab, &a.data)?;
     let heads = m.class_kinds();
     let by_heads = match a.choose.as_deref() {
         Some("heads") if heads.is_empty() => {

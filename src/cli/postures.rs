@@ -2,7 +2,6 @@
 //! (`choreo::lm::posture`) from the training side of corpus folders.
 
 use anyhow::{bail, Context, Result};
-use choreo::eval::generate::read_split;
 use choreo::lm::model::MotionModel;
 use choreo::lm::posture::{Postures, FILE};
 use std::path::PathBuf;
@@ -25,18 +24,7 @@ pub fn run(a: PosturesArgs) -> Result<()> {
         bail!("--model: postures are for the frame model (this folder holds the flat GPT)");
     }
     let vocab = m.vocabulary().clone();
-    let mut sequences = Vec::new();
-    for d in &a.data {
-        let (val, train) = read_split(&vocab, d, 0.1, &mut |line| eprintln!("{line}"))
-            .with_context(|| format!("--data {}", d.display()))?;
-        eprintln!(
-            "{}: {} training sequences ({} held out, not used)",
-            d.display(),
-            train.len(),
-            val.len()
-        );
-        sequences.extend(train.into_iter().map(|c| (c.name, c.labels, c.tokens)));
-    }
+    let sequences = super::exemplars::training_sequences(&vocab, &a.data)?;
     let p = Postures::fit(&sequences, &vocab, m.cond_kinds());
     if p.labels.is_empty() {
         bail!("--data: no training sequence carries a label the model knows");

@@ -445,26 +445,21 @@ mod tests {
         let mut rng = StdRng::seed_from_u64(1);
         let (angle, height) = (0, c.slots - 1);
         assert!(c.wraps(angle) && !c.wraps(height) && !c.wraps(c.slots - 3));
+        let mut from_bin_2 = |slot: usize| {
+            draw(
+                &sampling,
+                &mut rng,
+                &c,
+                (&rel, &abs),
+                None,
+                Some(2),
+                c.wraps(slot),
+            )
+        };
         for _ in 0..50 {
-            let a = draw(
-                &sampling,
-                &mut rng,
-                &c,
-                (&rel, &abs),
-                None,
-                Some(2),
-                c.wraps(angle),
-            );
+            let a = from_bin_2(angle);
             assert_eq!(a, 358, "an angle may wrap round");
-            let h = draw(
-                &sampling,
-                &mut rng,
-                &c,
-                (&rel, &abs),
-                None,
-                Some(2),
-                c.wraps(height),
-            );
+            let h = from_bin_2(height);
             assert!(h <= 2 + 48, "the height jumped from bin 2 to {h}");
         }
     }

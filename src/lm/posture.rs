@@ -268,7 +268,8 @@ mod tests {
         // floored at MIN_SPREAD.
         assert_eq!(s.spread, MIN_SPREAD);
         let wide = slot_stat([340.0, 350.0, 0.0, 10.0, 20.0].into_iter(), 360.0, true);
-        let sd = (200.0_f64 + 100.0 + 0.0 + 100.0 + 400.0) / 5.0;
+        // Offsets −20, −10, 0, 10, 20 bins: variance 200.
+        let sd = (400.0_f64 + 100.0 + 0.0 + 100.0 + 400.0) / 5.0;
         assert!(
             (wide.spread - sd.sqrt()).abs() < 0.1,
             "{wide:?} vs {}",
