@@ -192,7 +192,7 @@ async fn duet_socket(state: Arc<Choreo>, mut socket: WebSocket) {
         Ok(None) => return,
         Err(e) => return fail(socket, e).await,
     };
-    let session = match lm::DuetSession::open(
+    let session = match crate::service::duet::DuetSession::open(
         &state,
         &setup.labels,
         &setup.prompt_joints,
@@ -204,7 +204,7 @@ async fn duet_socket(state: Arc<Choreo>, mut socket: WebSocket) {
         Ok(s) => s,
         Err(e) => return fail(socket, e).await,
     };
-    let (frames_in, mut frames_out) = lm::duet(session);
+    let (frames_in, mut frames_out) = crate::service::duet::duet(session);
     let mut pending = setup.frame;
     loop {
         let frame = match pending.take() {

@@ -1,6 +1,6 @@
 //! A live duet, model side: the performer's prompt joints come in frame by
 //! frame, the model answers each with a full-body frame. The server wraps
-//! it with a worker permit (`service::generate::DuetSession`); `choreo bench model
+//! it with a worker permit (`service::duet::DuetSession`); `choreo bench model
 //! --duet FILE` times it on each runtime.
 
 use super::model::{MotionGenerator, MotionModel};

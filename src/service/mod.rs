@@ -8,7 +8,7 @@
 //!
 //! - [`input`]: where a request's motion comes from, and resolving it;
 //! - [`query`], [`interpolate`], [`lowpass`], [`keyframes`], [`generate`]
-//!   (one-shot, stream, duet), [`classify`], [`motions`] (ingest, get,
+//!   (one-shot, stream), [`duet`], [`classify`], [`motions`] (ingest, get,
 //!   export, delete, collections, audit);
 //! - [`error`]: the one error vocabulary with its HTTP and gRPC tables;
 //! - [`auth`]: tokens, scopes, collections and per-caller limits;
@@ -16,6 +16,7 @@
 
 pub mod auth;
 pub mod classify;
+pub mod duet;
 mod error;
 pub mod generate;
 pub mod input;
