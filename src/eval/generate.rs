@@ -284,41 +284,27 @@ pub fn eval_generate(
         }
     }
     let judge = Lda::fit(&x, &y, all_values.len(), 0.1);
-    let judge_acc = |rows: &[(String, &ClipStats)]| -> f64 {
-        let Some(j) = &judge else { return 0.0 };
-        let (mut hit, mut n) = (0usize, 0usize);
+    // The judge's (hits, windows) on each clip's k-th window, k = 0, 1, …:
+    // the accuracy overall, and whether the label holds as the clip goes on.
+    let judge_by_window = |rows: &[(String, &ClipStats)]| -> Vec<(usize, usize)> {
+        let Some(j) = &judge else { return Vec::new() };
+        let mut by = Vec::new();
         for (v, s) in rows {
-            for w in &s.lda_windows {
-                n += 1;
-                hit += (all_values.get(j.predict(w)) == Some(v)) as usize;
+            for (k, w) in s.lda_windows.iter().enumerate() {
+                if by.len() <= k {
+                    by.push((0, 0));
+                }
+                by[k].0 += (all_values.get(j.predict(w)) == Some(v)) as usize;
+                by[k].1 += 1;
             }
         }
-        hit as f64 / n.max(1) as f64
+        by
     };
-    // The judge's accuracy on each clip's k-th window, k = 0, 1, …: whether
-    // the label holds as the clip goes on.
-    let judge_by_window = |rows: &[(String, &ClipStats)]| -> Vec<f64> {
-        let Some(j) = &judge else { return Vec::new() };
-        let most = rows
-            .iter()
-            .map(|r| r.1.lda_windows.len())
-            .max()
-            .unwrap_or(0);
-        (0..most)
-            .map(|k| {
-                let (mut hit, mut n) = (0usize, 0usize);
-                for (v, s) in rows {
-                    if let Some(w) = s.lda_windows.get(k) {
-                        n += 1;
-                        hit += (all_values.get(j.predict(w)) == Some(v)) as usize;
-                    }
-                }
-                hit as f64 / n.max(1) as f64
-            })
-            .collect()
-    };
+    let share = |(hit, n): (usize, usize)| hit as f64 / n.max(1) as f64;
+    let overall =
+        |by: &[(usize, usize)]| share(by.iter().fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1)));
     let real_refs: Vec<(String, &ClipStats)> = real.iter().map(|(v, s)| (v.clone(), s)).collect();
-    let cond_acc_real = judge_acc(&real_refs);
+    let cond_acc_real = overall(&judge_by_window(&real_refs));
     let rk: Vec<Vec<f64>> = real.iter().map(|r| r.1.kinetic.clone()).collect();
     let rg: Vec<Vec<f64>> = real.iter().map(|r| r.1.geometric.clone()).collect();
     let tk: Vec<Vec<f64>> = real_train.iter().map(|r| r.1.kinetic.clone()).collect();
@@ -410,6 +396,7 @@ pub fn eval_generate(
                 w.iter().filter(|&&s| s < 0.1 * real_speed).count() as f64 / w.len().max(1) as f64
             };
             let refs: Vec<(String, &ClipStats)> = gen.iter().map(|(v, s)| (v.clone(), s)).collect();
+            let by_window = judge_by_window(&refs);
             rows.push(GenRow {
                 label_kind: kind.clone(),
                 sampling: format!(
@@ -441,8 +428,8 @@ pub fn eval_generate(
                 frozen,
                 diversity: diversity(&gk, &rk),
                 diversity_real: diversity(&rk, &rk),
-                cond_acc: judge_acc(&refs),
-                cond_acc_windows: judge_by_window(&refs),
+                cond_acc: overall(&by_window),
+                cond_acc_windows: by_window.iter().copied().map(share).collect(),
                 cond_acc_real,
                 seconds_per_clip: secs,
                 root_in_place: in_place,

@@ -92,16 +92,10 @@ impl Exemplars {
         } else {
             dir.with_file_name(FILE)
         };
-        if !path.exists() {
+        let Some((mut ex, name)) = super::read_optional_json::<Exemplars>(&path, "exemplars")?
+        else {
             return Ok(None);
-        }
-        let name = path.display().to_string();
-        let text = std::fs::read_to_string(&path).map_err(|e| LmError::Io {
-            file: name.clone(),
-            reason: e.to_string(),
-        })?;
-        let mut ex: Exemplars = serde_json::from_str(&text)
-            .map_err(|e| LmError::invalid(&name, "exemplars", e.to_string()))?;
+        };
         if (ex.fps - vocab.fps).abs() > 1e-9 {
             return Err(LmError::invalid(
                 &name,

@@ -53,6 +53,12 @@ pub struct FrameConfig {
     pub cond_every: bool,
 }
 
+/// Whether slot `s` of a frame of `slots` value slots holds an angle (see
+/// [`FrameConfig::wraps`]).
+pub fn slot_wraps(s: usize, slots: usize) -> bool {
+    s + 3 < slots
+}
+
 impl FrameConfig {
     /// Change classes the change head scores: `0..=2r` then the escape.
     pub fn rel_classes(&self) -> usize {
@@ -78,7 +84,7 @@ impl FrameConfig {
     /// π): every joint's slot, not the root's last three (ground velocity
     /// x and z, and height), whose ends lie metres apart.
     pub fn wraps(&self, s: usize) -> bool {
-        s + 3 < self.slots
+        slot_wraps(s, self.slots)
     }
 
     /// The change code of going from bin `from` to bin `to`.

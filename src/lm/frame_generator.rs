@@ -88,8 +88,7 @@ impl FrameGenerator {
                     "this model has no label postures (postures.json; choreo postures writes one)",
                 )
             })?;
-            let joints = session.manifest.vocabulary.joints.len();
-            p.pull(labels, sampling.posture, joints).map(Arc::new)
+            p.pull(labels, sampling.posture).map(Arc::new)
         } else {
             None
         };
@@ -345,18 +344,17 @@ fn draw(
     p1: Option<u32>,
     wraps: bool,
 ) -> u32 {
-    // The posture pull: each bin's offset, added to the absolute head and
-    // to the change that reaches the bin.
-    let pulled;
-    let abs = match pull {
-        Some(u) => {
-            pulled = abs.iter().zip(u).map(|(a, b)| a + b).collect::<Vec<f32>>();
-            &pulled[..]
+    // The posture pull: each bin's offset, added to the absolute head (only
+    // built when drawn from: the first frame, or an escape) and to the
+    // change that reaches the bin.
+    let abs_pulled = || -> Vec<f32> {
+        match pull {
+            Some(u) => abs.iter().zip(u).map(|(a, b)| a + b).collect(),
+            None => abs.to_vec(),
         }
-        None => abs,
     };
     let Some(p) = p1 else {
-        return sampling.draw(abs, rng) as u32;
+        return sampling.draw(&abs_pulled(), rng) as u32;
     };
     let bins = c.bins as i64;
     let r0 = c.radius as i64;
@@ -405,7 +403,7 @@ fn draw(
     if k != c.esc() {
         return (p as i64 + k as i64 - r0).clamp(0, bins - 1) as u32;
     }
-    let mut masked = abs.to_vec();
+    let mut masked = abs_pulled();
     for (b, x) in masked.iter_mut().enumerate() {
         if (b as i64 - p as i64).abs() <= r0 || !reach(b as i64) {
             *x = f32::NEG_INFINITY;

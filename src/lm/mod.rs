@@ -206,6 +206,27 @@ pub enum LmError {
     Runtime(String),
 }
 
+/// A JSON file a model folder may hold (`path`): None when absent, else
+/// its parse, an unreadable file an `Io` error and a malformed one an
+/// error naming `what` (returned with the path's display name, for the
+/// caller's own field errors).
+pub fn read_optional_json<T: serde::de::DeserializeOwned>(
+    path: &std::path::Path,
+    what: &str,
+) -> Result<Option<(T, String)>, LmError> {
+    if !path.exists() {
+        return Ok(None);
+    }
+    let name = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| LmError::Io {
+        file: name.clone(),
+        reason: e.to_string(),
+    })?;
+    let v =
+        serde_json::from_str(&text).map_err(|e| LmError::invalid(&name, what, e.to_string()))?;
+    Ok(Some((v, name)))
+}
+
 impl LmError {
     pub fn invalid(
         file: impl Into<String>,

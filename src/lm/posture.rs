@@ -47,15 +47,13 @@ pub struct Postures {
     pub labels: BTreeMap<String, BTreeMap<String, Vec<Option<SlotStat>>>>,
 }
 
-/// Whether slot `s` is pulled: not the root joint's rotation (slots 0–2),
-/// not the root's ground velocity (the two slots after the joints).
-fn pulled(s: usize, joints: usize) -> bool {
-    s >= 3 && s != 3 * joints && s != 3 * joints + 1
-}
+use super::frame::slot_wraps as wraps;
 
-/// Angle slots wrap round (their bins meet at ±180°); the root's slots do not.
-fn wraps(s: usize, joints: usize) -> bool {
-    s < 3 * joints
+/// Whether slot `s` of `slots` is pulled: a joint angle but not the root
+/// joint's rotation (slots 0–2), or the root's height (the last slot);
+/// not the root's ground velocity (the two slots before it).
+fn pulled(s: usize, slots: usize) -> bool {
+    (s >= 3 && wraps(s, slots)) || s + 1 == slots
 }
 
 impl Postures {
@@ -68,7 +66,6 @@ impl Postures {
     ) -> Postures {
         let fl = vocab.frame_len();
         let slots = fl - 1;
-        let nj = vocab.joints.len();
         let bins = vocab.bins;
         let mut labels = BTreeMap::new();
         let mut frames = BTreeMap::new();
@@ -88,11 +85,11 @@ impl Postures {
                 }
                 let stats = (0..slots)
                     .map(|s| {
-                        pulled(s, nj).then(|| {
+                        pulled(s, slots).then(|| {
                             let xs = seqs
                                 .iter()
                                 .flat_map(|t| t.chunks_exact(fl).map(move |f| f[s] as f64));
-                            slot_stat(xs, bins as f64, wraps(s, nj))
+                            slot_stat(xs, bins as f64, wraps(s, slots))
                         })
                     })
                     .collect();
@@ -119,17 +116,10 @@ impl Postures {
     /// list of the wrong length or a spread that is not positive) is an
     /// error naming the field.
     pub fn load(dir: &Path, vocab: &Vocabulary) -> Result<Option<Postures>, LmError> {
-        let path = dir.join(FILE);
-        if !path.exists() {
+        let Some((p, name)) = super::read_optional_json::<Postures>(&dir.join(FILE), "postures")?
+        else {
             return Ok(None);
-        }
-        let name = path.display().to_string();
-        let text = std::fs::read_to_string(&path).map_err(|e| LmError::Io {
-            file: name.clone(),
-            reason: e.to_string(),
-        })?;
-        let p: Postures = serde_json::from_str(&text)
-            .map_err(|e| LmError::invalid(&name, "postures", e.to_string()))?;
+        };
         p.check(vocab)
             .map_err(|(f, why)| LmError::invalid(&name, f, why))?;
         Ok(Some(p))
@@ -187,7 +177,7 @@ impl Postures {
     /// The pull for `labels`, times `weight`: per slot, every bin's logit
     /// offset `−w Σ_labels d(b, μ)² / (2σ²)` (labels without a posture add
     /// nothing). None when no asked-for label has one.
-    pub fn pull(&self, labels: &Labels, weight: f64, joints: usize) -> Option<Pull> {
+    pub fn pull(&self, labels: &Labels, weight: f64) -> Option<Pull> {
         let stats: Vec<&Vec<Option<SlotStat>>> = labels
             .iter()
             .filter_map(|(k, v)| self.labels.get(k)?.get(v))
@@ -203,7 +193,7 @@ impl Postures {
                         let mut x = 0.0;
                         for st in stats.iter().filter_map(|l| l[s].as_ref()) {
                             let mut d = (b as f64 - st.mean).abs();
-                            if wraps(s, joints) {
+                            if wraps(s, self.slots) {
                                 d = d.min(bins - d);
                             }
                             let sp = st.spread.max(MIN_SPREAD);

@@ -102,10 +102,10 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         s.max_jump
     };
     // proto3 again: 0 = the recommended pull, negative = none.
-    let posture = match s.posture {
-        p if p == 0.0 => r.posture,
-        p if p < 0.0 => 0.0,
-        p => p,
+    let posture = if s.posture == 0.0 {
+        r.posture
+    } else {
+        s.posture.max(0.0)
     };
     if s.temperature == 0.0 && s.top_k == 0 && s.top_p == 0.0 && s.keep_near == 0 {
         return crate::lm::Sampling {
