@@ -284,7 +284,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
 
 #[test]
 fn posture_pulls_the_joints_toward_the_labels_posture() {
-    use choreo::lm::posture::{Postures, FILE};
+    use choreo::lm::posture::{up_tilt_degrees, Postures, FILE};
     let v = vocab();
     let c = corpus(&v);
     let net = trained(&v, &c, 20);
@@ -402,7 +402,54 @@ fn posture_pulls_the_joints_toward_the_labels_posture() {
         "{closer} of {} slots moved toward the labels' posture",
         targets.len()
     );
+    // The root's tilt: the fitted figure is the training clip's own (from
+    // its tokens), and a tilt asked 30° away from where the plain clip
+    // stands moves the body toward it.
+    let tilt_of = |t: &[u32]| -> f64 {
+        let w = std::f64::consts::TAU / bins;
+        let ts: Vec<f64> = t
+            .chunks_exact(fl)
+            .map(|f| {
+                up_tilt_degrees([0, 1, 2].map(|i| -std::f64::consts::PI + (f[i] as f64 + 0.5) * w))
+            })
+            .collect();
+        ts.iter().sum::<f64>() / ts.len() as f64
+    };
+    let fitted = p.tilt["style"]["happy"].clone();
+    let own = tilt_of(&v.prepare(&happy).and_then(|q| v.encode_motion(&q)).unwrap());
+    assert!((fitted.mean - own).abs() < 1e-9, "{fitted:?} vs {own}");
+    let stand = tilt_of(&pulled);
+    let mut tilted = p.clone();
+    let want = (stand + 30.0).min(150.0);
+    let st = tilted
+        .tilt
+        .get_mut("style")
+        .unwrap()
+        .get_mut("happy")
+        .unwrap();
+    st.mean = want;
+    st.spread = 5.0;
+    std::fs::write(
+        dir.path().join(FILE),
+        serde_json::to_string(&tilted).unwrap(),
+    )
+    .unwrap();
+    let leaned = tilt_of(&gen(&MotionModel::load(dir.path()).unwrap(), &pulled_s));
+    assert!(
+        (leaned - want).abs() * 2.0 < (stand - want).abs(),
+        "asked {want:.1}°: {leaned:.1}° (from {stand:.1}°)"
+    );
     // A postures file that does not fit the model is a load error naming the field.
+    let mut bad = p.clone();
+    bad.tilt
+        .get_mut("style")
+        .unwrap()
+        .get_mut("happy")
+        .unwrap()
+        .mean = 200.0;
+    std::fs::write(dir.path().join(FILE), serde_json::to_string(&bad).unwrap()).unwrap();
+    let e = MotionModel::load(dir.path()).err().unwrap().to_string();
+    assert!(e.contains("tilt.style.happy"), "{e}");
     let mut bad = p.clone();
     bad.bins += 1;
     std::fs::write(dir.path().join(FILE), serde_json::to_string(&bad).unwrap()).unwrap();

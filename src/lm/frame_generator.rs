@@ -250,6 +250,7 @@ impl FrameGenerator {
         for s in 0..c.slots {
             session.local_step(&mut self.lstate, &mut local, &self.h, inp, vel[s], prev[s])?;
             let out = &self.lstate.out;
+            let pull = self.pull.as_ref().map(|p| p.slot(s, &frame, p1.as_deref()));
             let tok = match forced[s] {
                 Some(t) if (t as usize) < c.bins => t,
                 Some(t) => {
@@ -264,7 +265,7 @@ impl FrameGenerator {
                     &mut self.rng,
                     c,
                     (out.data(0), out.data(1)),
-                    self.pull.as_ref().map(|p| &p.offsets[s][..]),
+                    pull.as_deref(),
                     p1.as_ref().map(|p| p[s]),
                     c.wraps(s),
                 ),

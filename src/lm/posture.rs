@@ -8,9 +8,15 @@
 //! worth"): its clips start in the exemplar's style and drift to the
 //! corpus's average pose within seconds.
 //!
-//! Not pulled: the root joint's rotation (it holds the heading, which a
-//! take chooses freely) and the root's ground velocity (world-frame
-//! travel); the root's height is.
+//! Not pulled slot by slot: the root joint's rotation (it holds the
+//! heading, which a take chooses freely) and the root's ground velocity
+//! (world-frame travel); the root's height is. The root's rotation is
+//! pulled through its tilt instead: the angle between the body's up axis
+//! and the vertical, whatever the heading, has a mean and spread per label
+//! like a slot's, and each root component's bins are scored by the tilt
+//! they would give beside the components already drawn (the previous
+//! frame's for those still to come). Without it a clip can bow forward to
+//! lying and, its long context seeing itself lie, stay there.
 //!
 //! `postures.json` in a frame model's folder, written by `choreo postures`
 //! from the training side of corpus folders.
@@ -19,6 +25,7 @@ use super::LmError;
 use crate::motion::Labels;
 use crate::tokenize::vocab::Vocabulary;
 use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -27,6 +34,9 @@ pub const FILE: &str = "postures.json";
 /// The narrowest spread a slot's pull uses (bins): a slot a label never
 /// moves would otherwise pin it.
 pub const MIN_SPREAD: f64 = 3.0;
+
+/// The narrowest spread of the tilt pull (degrees).
+pub const MIN_TILT_SPREAD: f64 = 2.0;
 
 /// One slot under one label: mean bin and spread (bins), or none where
 /// the slot is not pulled.
@@ -45,6 +55,32 @@ pub struct Postures {
     pub frames: BTreeMap<String, BTreeMap<String, usize>>,
     /// kind → value → one entry per slot (`null`: not pulled).
     pub labels: BTreeMap<String, BTreeMap<String, Vec<Option<SlotStat>>>>,
+    /// kind → value → the root's tilt from the vertical (degrees): mean
+    /// and spread. Absent in files written before session 24 (no tilt
+    /// pull then).
+    #[serde(default)]
+    pub tilt: BTreeMap<String, BTreeMap<String, SlotStat>>,
+}
+
+/// The angle (degrees) between the vertical (+y) and the up axis of a body
+/// turned by the axis-angle `aa`: the (y, y) entry of its rotation matrix
+/// is that angle's cosine.
+pub fn up_tilt_degrees(aa: [f64; 3]) -> f64 {
+    let th = (aa[0] * aa[0] + aa[1] * aa[1] + aa[2] * aa[2]).sqrt();
+    if th < 1e-12 {
+        return 0.0;
+    }
+    let ay = aa[1] / th;
+    let c = th.cos();
+    (c + (1.0 - c) * ay * ay)
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
+}
+
+/// An angle bin's value (radians): bins uniform over [−π, π].
+fn angle_of(bin: u32, bins: usize) -> f64 {
+    -std::f64::consts::PI + (bin as f64 + 0.5) * std::f64::consts::TAU / bins as f64
 }
 
 use super::frame::slot_wraps as wraps;
@@ -69,6 +105,7 @@ impl Postures {
         let bins = vocab.bins;
         let mut labels = BTreeMap::new();
         let mut frames = BTreeMap::new();
+        let mut tilt = BTreeMap::new();
         for k in kinds {
             let Some(values) = vocab.labels.get(k) else {
                 continue;
@@ -97,6 +134,15 @@ impl Postures {
                     .entry(k.clone())
                     .or_insert_with(BTreeMap::new)
                     .insert(v.clone(), stats);
+                let tilts = seqs.iter().flat_map(|t| {
+                    t.chunks_exact(fl)
+                        .map(|f| up_tilt_degrees([0, 1, 2].map(|i| angle_of(f[i], bins))))
+                });
+                let mut st = slot_stat(tilts, 360.0, false);
+                st.spread = st.spread.max(MIN_TILT_SPREAD);
+                tilt.entry(k.clone())
+                    .or_insert_with(BTreeMap::new)
+                    .insert(v.clone(), st);
                 frames
                     .entry(k.clone())
                     .or_insert_with(BTreeMap::new)
@@ -108,6 +154,7 @@ impl Postures {
             slots,
             frames,
             labels,
+            tilt,
         }
     }
 
@@ -171,6 +218,25 @@ impl Postures {
                 }
             }
         }
+        for (k, vs) in &self.tilt {
+            for (v, st) in vs {
+                let field = format!("tilt.{k}.{v}");
+                if !vocab.labels.get(k).is_some_and(|s| s.contains(v)) {
+                    return Err((field, "a label the model does not know".into()));
+                }
+                let ok =
+                    st.spread.is_finite() && st.spread > 0.0 && (0.0..=180.0).contains(&st.mean);
+                if !ok {
+                    return Err((
+                        field,
+                        format!(
+                            "mean {} spread {} (want 0–180 degrees and a positive spread)",
+                            st.mean, st.spread
+                        ),
+                    ));
+                }
+            }
+        }
         Ok(())
     }
 
@@ -204,14 +270,66 @@ impl Postures {
                     .collect()
             })
             .collect();
-        Some(Pull { offsets })
+        let tilt = labels
+            .iter()
+            .filter_map(|(k, v)| self.tilt.get(k)?.get(v).cloned())
+            .collect();
+        Some(Pull {
+            offsets,
+            tilt,
+            weight,
+            bins: self.bins,
+        })
     }
 }
 
-/// The asked-for labels' postures as logit offsets: `slots` rows of `bins`.
+/// The asked-for labels' postures as logit offsets: `slots` rows of `bins`,
+/// and their root tilts.
 #[derive(Clone, Debug)]
 pub struct Pull {
     pub offsets: Vec<Vec<f32>>,
+    tilt: Vec<SlotStat>,
+    weight: f64,
+    bins: usize,
+}
+
+impl Pull {
+    /// Slot `s`'s offsets: for a root rotation component (s < 3) with tilt
+    /// figures, every bin's `−w Σ_labels (t − μ)² / (2σ²)`, t the tilt of
+    /// the axis-angle made of that bin, the components this frame has
+    /// drawn (`drawn[..s]`) and the previous frame's for the rest (zero
+    /// without one); otherwise the slot's fixed offsets.
+    pub fn slot(&self, s: usize, drawn: &[u32], prev: Option<&[u32]>) -> Cow<'_, [f32]> {
+        if s >= 3 || self.tilt.is_empty() {
+            return Cow::Borrowed(&self.offsets[s]);
+        }
+        let mut aa = [0.0; 3];
+        for (i, a) in aa.iter_mut().enumerate() {
+            let b = if i < s {
+                drawn.get(i)
+            } else {
+                prev.and_then(|p| p.get(i))
+            };
+            *a = b.map_or(0.0, |&b| angle_of(b, self.bins));
+        }
+        Cow::Owned(
+            (0..self.bins)
+                .map(|b| {
+                    aa[s] = angle_of(b as u32, self.bins);
+                    let t = up_tilt_degrees(aa);
+                    let x: f64 = self
+                        .tilt
+                        .iter()
+                        .map(|st| {
+                            let d = t - st.mean;
+                            -d * d / (2.0 * st.spread * st.spread)
+                        })
+                        .sum();
+                    self.offsets[s][b] + (self.weight * x) as f32
+                })
+                .collect(),
+        )
+    }
 }
 
 /// Mean and spread of a slot's bins; for an angle the circular mean (on
@@ -248,6 +366,33 @@ fn slot_stat(xs: impl Iterator<Item = f64>, bins: f64, wraps: bool) -> SlotStat 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tilt_is_the_up_axis_angle_from_the_vertical_whatever_the_heading() {
+        use crate::motion::rotation::{
+            axis_angle_to_quat, quat_mul, quat_rotate, quat_to_axis_angle,
+        };
+        // A turn about the vertical alone: upright, at any heading.
+        for h in [0.0, 1.0, 3.0, -2.5] {
+            assert!(up_tilt_degrees([0.0, h, 0.0]).abs() < 1e-6);
+        }
+        // A 30° bow (about x) under headings round the circle, π included
+        // (where the axis-angle components are farthest from the tilt).
+        for h in [0.0, 1.0, std::f64::consts::PI, -2.0] {
+            let q = quat_mul(
+                axis_angle_to_quat([0.0, h, 0.0]),
+                axis_angle_to_quat([30f64.to_radians(), 0.0, 0.0]),
+            );
+            let t = up_tilt_degrees(quat_to_axis_angle(q));
+            assert!((t - 30.0).abs() < 1e-6, "heading {h}: {t}");
+        }
+        // Any rotation: the angle the rotated up axis makes with +y.
+        for aa in [[0.3, -1.2, 0.8], [-1.5, 0.1, 0.15], [2.0, 2.0, -1.0]] {
+            let up = quat_rotate(axis_angle_to_quat(aa), [0.0, 1.0, 0.0]);
+            let want = up[1].clamp(-1.0, 1.0).acos().to_degrees();
+            assert!((up_tilt_degrees(aa) - want).abs() < 1e-6, "{aa:?}");
+        }
+    }
 
     #[test]
     fn circular_mean_and_spread_go_the_short_way_round() {
