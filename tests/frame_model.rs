@@ -613,6 +613,10 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         // genres far above chance (1 in 10).
         assert!(r.cond_acc_real > 0.3, "{r:?}");
         assert!(r.diversity_real > 0.0);
+        // Held-out real frames sit inside the training frames' tilt and
+        // floor bands (1 % outside by construction, give or take the split).
+        assert!(r.tilt_out_real < 0.05 && r.floor_out_real < 0.05, "{r:?}");
+        assert!((0.0..=1.0).contains(&r.tilt_out) && (0.0..=1.0).contains(&r.floor_out));
     }
     // Each row names its sampling.
     assert_eq!(rows[0].sampling, "greedy");

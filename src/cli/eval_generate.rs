@@ -166,5 +166,21 @@ pub fn run(
             .collect();
         println!("  {}: {} %", r.sampling, w.join(" / "));
     }
+    println!(
+        "frames tilted past 99 % of real training frames ({:.0}°) / lowest joint off their 0.5–99.5 % band ({:.3}–{:.3} m) (held-out real):",
+        rows.first().map_or(f64::NAN, |r| r.tilt_max),
+        rows.first().map_or(f64::NAN, |r| r.floor_band[0]),
+        rows.first().map_or(f64::NAN, |r| r.floor_band[1])
+    );
+    for r in &rows {
+        println!(
+            "  {}: {:.1} % ({:.1} %) / {:.1} % ({:.1} %)",
+            r.sampling,
+            100.0 * r.tilt_out,
+            100.0 * r.tilt_out_real,
+            100.0 * r.floor_out,
+            100.0 * r.floor_out_real
+        );
+    }
     Ok(())
 }

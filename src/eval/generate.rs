@@ -70,6 +70,20 @@ pub struct GenRow {
     /// window: whether the label holds as the clip goes on.
     pub cond_acc_windows: Vec<f64>,
     pub cond_acc_real: f64,
+    /// Frames whose root tilts further from the vertical than 99 % of the
+    /// real training frames do (lying, bowing past the corpus), generated
+    /// and held-out real.
+    pub tilt_out: f64,
+    pub tilt_out_real: f64,
+    /// Frames whose lowest joint is off the floor's band: below the real
+    /// training frames' 0.5th or above their 99.5th percentile (sunk into
+    /// the floor, floating), generated and held-out real.
+    pub floor_out: f64,
+    pub floor_out_real: f64,
+    /// The bands: the tilt's 99th percentile (degrees) and the lowest
+    /// joint's 0.5th–99.5th (metres) over the real training frames.
+    pub tilt_max: f64,
+    pub floor_band: [f64; 2],
     pub seconds_per_clip: f64,
     /// The real clips have no root trajectory, so both sides were measured
     /// with the root held in place.
@@ -313,6 +327,38 @@ pub fn eval_generate(
     let real_accel = mean(real.iter().map(|r| r.1.accel));
     let real_jerk = mean(real.iter().map(|r| r.1.jerk));
     let real_skate = mean(real.iter().map(|r| r.1.skate));
+    // The real training frames' bands: tilt up to its 99th percentile,
+    // the lowest joint between its 0.5th and 99.5th.
+    let sorted = |f: fn(&ClipStats) -> &Vec<f64>| -> Vec<f64> {
+        let mut v: Vec<f64> = real_train.iter().flat_map(|r| f(&r.1).clone()).collect();
+        v.sort_by(f64::total_cmp);
+        v
+    };
+    let (train_tilt, train_low) = (sorted(|s| &s.tilt), sorted(|s| &s.lowest));
+    let tilt_max = super::percentile(&train_tilt, 0.99);
+    let (low_lo, low_hi) = (
+        super::percentile(&train_low, 0.005),
+        super::percentile(&train_low, 0.995),
+    );
+    let out_share = |clips: &[(String, &ClipStats)]| -> (f64, f64) {
+        let share =
+            |xs: Vec<bool>| xs.iter().filter(|&&b| b).count() as f64 / xs.len().max(1) as f64;
+        (
+            share(
+                clips
+                    .iter()
+                    .flat_map(|r| r.1.tilt.iter().map(|&t| t > tilt_max))
+                    .collect(),
+            ),
+            share(
+                clips
+                    .iter()
+                    .flat_map(|r| r.1.lowest.iter().map(|&y| y < low_lo || y > low_hi))
+                    .collect(),
+            ),
+        )
+    };
+    let (tilt_out_real, floor_out_real) = out_share(&real_refs);
     let mut rows = Vec::new();
     if o.exemplar_modes.contains(&true) && o.exemplars.is_none() {
         anyhow::bail!(
@@ -397,6 +443,7 @@ pub fn eval_generate(
             };
             let refs: Vec<(String, &ClipStats)> = gen.iter().map(|(v, s)| (v.clone(), s)).collect();
             let by_window = judge_by_window(&refs);
+            let (tilt_out, floor_out) = out_share(&refs);
             rows.push(GenRow {
                 label_kind: kind.clone(),
                 sampling: format!(
@@ -431,6 +478,12 @@ pub fn eval_generate(
                 cond_acc: overall(&by_window),
                 cond_acc_windows: by_window.iter().copied().map(share).collect(),
                 cond_acc_real,
+                tilt_out,
+                tilt_out_real,
+                floor_out,
+                floor_out_real,
+                tilt_max,
+                floor_band: [low_lo, low_hi],
                 seconds_per_clip: secs,
                 root_in_place: in_place,
             });

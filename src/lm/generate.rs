@@ -474,8 +474,9 @@ impl Generator {
 /// Decodes a stream frame by frame exactly as
 /// [`Vocabulary::decode_motion`] decodes the whole: the root's ground
 /// position integrates the velocity slots from the second frame on, or,
-/// [`FrameDecoder::root_from_feet`], is rebuilt from foot contact as
-/// [`crate::motion::contact::lock_feet`] rebuilds a whole clip's.
+/// [`FrameDecoder::root_from_feet`], is rebuilt from foot contact (and the
+/// feet set on the floor) as [`crate::motion::contact::lock_feet`] rebuilds
+/// a whole clip's.
 pub struct FrameDecoder {
     x: f64,
     z: f64,
@@ -519,8 +520,13 @@ impl FrameDecoder {
         } else {
             [0.0, 0.0]
         };
+        let mut lift = 0.0;
         match &mut self.feet {
-            Some(lock) => [self.x, self.z] = lock.step(&one.positions(), carried),
+            Some(lock) => {
+                let pose = one.positions();
+                [self.x, self.z] = lock.step(&pose, carried);
+                lift = lock.ground_lift(&pose);
+            }
             None => {
                 self.x += carried[0];
                 self.z += carried[1];
@@ -530,7 +536,7 @@ impl FrameDecoder {
         let t = one.trans[0];
         Ok((
             one.frame_rotations(0).to_vec(),
-            [t[0] + self.x, t[1], t[2] + self.z],
+            [t[0] + self.x, t[1] + lift, t[2] + self.z],
         ))
     }
 }

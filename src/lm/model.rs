@@ -82,6 +82,12 @@ impl MotionModel {
         }
     }
 
+    /// Whether `sampling.posture` can pull toward the labels' postures
+    /// (a frame model with postures.json).
+    pub fn has_postures(&self) -> bool {
+        matches!(self, MotionModel::Frame(s) if s.postures.is_some())
+    }
+
     /// The label kinds the model's class heads classify.
     pub fn class_kinds(&self) -> Vec<String> {
         let classes = match self {

@@ -78,8 +78,14 @@ pub fn up_tilt_degrees(aa: [f64; 3]) -> f64 {
         .to_degrees()
 }
 
+/// The root's tilt (degrees) in a frame's tokens (slots 0–2 the root
+/// joint's axis-angle).
+pub fn frame_tilt(frame: &[u32], bins: usize) -> f64 {
+    up_tilt_degrees([0, 1, 2].map(|i| angle_of(frame[i], bins)))
+}
+
 /// An angle bin's value (radians): bins uniform over [−π, π].
-fn angle_of(bin: u32, bins: usize) -> f64 {
+pub fn angle_of(bin: u32, bins: usize) -> f64 {
     -std::f64::consts::PI + (bin as f64 + 0.5) * std::f64::consts::TAU / bins as f64
 }
 
@@ -134,10 +140,9 @@ impl Postures {
                     .entry(k.clone())
                     .or_insert_with(BTreeMap::new)
                     .insert(v.clone(), stats);
-                let tilts = seqs.iter().flat_map(|t| {
-                    t.chunks_exact(fl)
-                        .map(|f| up_tilt_degrees([0, 1, 2].map(|i| angle_of(f[i], bins))))
-                });
+                let tilts = seqs
+                    .iter()
+                    .flat_map(|t| t.chunks_exact(fl).map(|f| frame_tilt(f, bins)));
                 let mut st = slot_stat(tilts, 360.0, false);
                 st.spread = st.spread.max(MIN_TILT_SPREAD);
                 tilt.entry(k.clone())

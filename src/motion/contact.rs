@@ -12,6 +12,13 @@
 //! down (a jump, a run's flight) the displacement the motion carried is
 //! kept. It is causal (each frame needs only the frames before it), so a
 //! stream and a one-shot clip get the same path.
+//!
+//! The height too is the model's own token, so a generated body floats a
+//! few centimetres or sinks into the floor whenever its legs bend other
+//! than the height says. [`FootLock::ground_lift`] puts the lowest foot
+//! joint on the floor (y = 0, where the vocabulary decodes the clip's
+//! floor) when it is below it or within [`GROUND_SNAP`] above it, eases
+//! out up to twice that, and leaves a higher body (a jump) as it is.
 
 use super::clip::Motion;
 use super::rotation::Vec3;
@@ -20,6 +27,10 @@ use super::skeleton::Skeleton;
 /// How far above the lowest height its feet have reached a foot joint
 /// still counts as standing on the floor (metres).
 pub const CONTACT_HEIGHT: f64 = 0.08;
+
+/// A lowest foot joint this close above the floor, or below it, is set
+/// on it (metres); from here to twice this the lift eases out.
+pub const GROUND_SNAP: f64 = 0.05;
 
 /// Foot joints: those whose rest height lies within this of the lowest
 /// rest joint's (metres): SMPL-13's ankles; SMPL-24's ankles and feet.
@@ -49,6 +60,28 @@ impl FootLock {
             prev: None,
             last: [0.0, 0.0],
             ground: [0.0, 0.0],
+        }
+    }
+
+    /// The vertical move (metres, added to the root's height) that sets a
+    /// pose's lowest foot joint on the floor y = 0: `−e` for a lowest foot
+    /// at `e` < [`GROUND_SNAP`] (below the floor included), easing to 0 at
+    /// 2 × GROUND_SNAP (the foot then at `2(e − GROUND_SNAP)`, continuous),
+    /// nothing above (in the air). Stateless: each frame on its own.
+    pub fn ground_lift(&self, pose: &[Vec3]) -> f64 {
+        let e = self
+            .feet
+            .iter()
+            .map(|&k| pose[k][1])
+            .fold(f64::INFINITY, f64::min);
+        if !e.is_finite() {
+            0.0
+        } else if e < GROUND_SNAP {
+            -e
+        } else if e < 2.0 * GROUND_SNAP {
+            e - 2.0 * GROUND_SNAP
+        } else {
+            0.0
         }
     }
 
@@ -86,7 +119,8 @@ impl FootLock {
 }
 
 /// The motion with its root's ground path rebuilt from foot contact
-/// ([`FootLock`]); heights, rotations and everything else unchanged.
+/// ([`FootLock`]) and its feet set on the floor y = 0
+/// ([`FootLock::ground_lift`]); rotations and everything else unchanged.
 pub fn lock_feet(m: &Motion) -> Motion {
     let j = m.joints();
     let mut flat = m.clone();
@@ -105,8 +139,10 @@ pub fn lock_feet(m: &Motion) -> Motion {
                 m.trans[f][2] - m.trans[f - 1][2],
             ]
         };
-        let g = lock.step(&pose[f * j..(f + 1) * j], carried);
+        let here = &pose[f * j..(f + 1) * j];
+        let g = lock.step(here, carried);
         out.trans[f][0] = m.trans[0][0] + g[0];
+        out.trans[f][1] += lock.ground_lift(here);
         out.trans[f][2] = m.trans[0][2] + g[1];
     }
     out
@@ -117,11 +153,15 @@ mod tests {
     use super::*;
 
     /// SMPL-13 standing still (rest pose) for `n` frames, its root's
-    /// ground position at `x(f)` and height `y(f)`.
+    /// ground position at `x(f)` and its ankles `y(f)` above the floor.
     fn standing(n: usize, x: impl Fn(usize) -> f64, y: impl Fn(usize) -> f64) -> Motion {
         let sk = Skeleton::smpl13();
         let j = sk.len();
-        let trans = (0..n).map(|f| [x(f), y(f), 0.0]).collect();
+        let ankle = Motion::rest_positions(&sk)
+            .iter()
+            .map(|p| p[1])
+            .fold(f64::INFINITY, f64::min);
+        let trans = (0..n).map(|f| [x(f), y(f) - ankle, 0.0]).collect();
         Motion::new(
             "t",
             20.0,
@@ -160,6 +200,35 @@ mod tests {
             m.trans.iter().map(|t| t[1]).collect::<Vec<_>>()
         );
         assert_eq!(l.rotations, m.rotations);
+    }
+
+    #[test]
+    fn the_feet_are_set_on_the_floor_unless_in_the_air() {
+        // Ankles sunk 4 cm, on the floor, floating 3, 7 and 12 cm, and
+        // 30 cm up: the first three go to the floor, 7 cm eases to
+        // 2 × (7 − 5) = 4 cm, the rest stay.
+        let ys = [-0.04, 0.0, 0.03, 0.07, 0.12, 0.3];
+        let m = standing(ys.len(), |_| 0.0, |f| ys[f]);
+        let l = lock_feet(&m);
+        let want = [0.0, 0.0, 0.0, 0.04, 0.12, 0.3];
+        for f in 0..ys.len() {
+            let d = l.trans[f][1] - m.trans[f][1];
+            assert!(
+                (ys[f] + d - want[f]).abs() < 1e-9,
+                "frame {f}: {}",
+                ys[f] + d
+            );
+        }
+        // The lift is continuous where it eases out.
+        let sk = Skeleton::smpl13();
+        let lock = FootLock::new(&sk);
+        let at = |e: f64| {
+            let mm = standing(1, |_| 0.0, |_| e);
+            e + lock.ground_lift(&mm.positions())
+        };
+        for e in [GROUND_SNAP, 2.0 * GROUND_SNAP] {
+            assert!((at(e - 1e-9) - at(e + 1e-9)).abs() < 1e-6, "at {e}");
+        }
     }
 
     #[test]

@@ -489,7 +489,8 @@ pub async fn generate_stream(
 /// What the loaded model offers a client (`GET /v1/model`): its kind, frame
 /// rate, skeleton (joint names in frame order, parents, rest offsets),
 /// the joints a prompt may force, the label values it was trained on, its
-/// context, and the longest generation a request may ask for.
+/// context, the longest generation a request may ask for, and whether it
+/// can hold the labels' postures (`sampling.posture`).
 pub fn model_info(state: &Choreo) -> Result<serde_json::Value, ApiError> {
     let s = model(state)?;
     let v = s.vocabulary();
@@ -504,6 +505,7 @@ pub fn model_info(state: &Choreo) -> Result<serde_json::Value, ApiError> {
         "context_frames": s.context_frames(),
         "max_frames": MAX_GENERATE_FRAMES,
         "inbetweener": state.inbetweener.is_some(),
+        "postures": s.has_postures(),
     }))
 }
 

@@ -284,6 +284,17 @@ try {
     check(results.generate_steered_frames >= 79, `steered: ${results.generate_steered_frames} frames of 80`);
     await page.uncheck("#g-steer");
     await page.uncheck("#g-feet");
+    // Holding the style (the bundled model has label postures): the
+    // stream's start names posture 2 and max jump 12.
+    check(await page.$("#g-hold"), "the bundled model has postures, the page offers no hold");
+    await page.check("#g-hold");
+    await page.click("#g-go");
+    await page.waitForSelector("#g-status .ok", { timeout: 120000 });
+    const held = await page.evaluate(() => window.__studio.sampling);
+    check(held && held.posture === 2 && held.max_jump === 12, `held: the stream ran ${JSON.stringify(held)}`);
+    results.generate_held_frames = await page.evaluate(() => window.__studio.streamed);
+    check(results.generate_held_frames >= 79, `held: ${results.generate_held_frames} frames of 80`);
+    await page.uncheck("#g-hold");
   }
   noErrors(page);
   await shot(page, "generate");

@@ -363,6 +363,8 @@ async function generatePage() {
     ${samplingFields("g")}
     <div class="row"><label for="g-steer">steer to the labels</label><input id="g-steer" type="checkbox">
       <span class="note">every 20 frames, 4 continuations; the model's class heads keep the likeliest (4× the work)</span></div>
+    ${m.postures ? `<div class="row"><label for="g-hold">hold the style</label><input id="g-hold" type="checkbox">
+      <span class="note">pull every joint and the body's tilt toward the labels' own posture, changes capped at 12° a frame (keeps the label to the end; livelier without)</span></div>` : ""}
     <div class="row"><label for="g-feet">feet on the floor</label><input id="g-feet" type="checkbox">
       <span class="note">the root travels as the planted foot says, so feet do not slide (the model's own path in the air)</span></div>
     <h3>Prompt joints</h3>
@@ -385,6 +387,10 @@ async function generate() {
   if ($("#g-steer").checked) {
     body.candidates = 4;
     body.rank_every = 20;
+  }
+  if ($("#g-hold")?.checked) {
+    body.sampling.posture = 2;
+    body.sampling.max_jump = 12;
   }
   if ($("#g-feet").checked) body.root = "feet";
   const promptId = $("#g-prompt").value;

@@ -37,6 +37,11 @@ pub(super) struct ClipStats {
     pub(super) window_speed: Vec<f64>,
     /// Token-statistics windows for the conditioning judge.
     pub(super) lda_windows: Vec<Vec<f64>>,
+    /// Per frame: the root's tilt from the vertical (degrees), and the
+    /// height of the body's lowest joint (m): a body lying down, floating
+    /// or sunk into the floor shows here.
+    pub(super) tilt: Vec<f64>,
+    pub(super) lowest: Vec<f64>,
 }
 
 const JUDGE_FRAMES: usize = 40;
@@ -146,6 +151,17 @@ pub(super) fn clip_stats(
         skate: skate / ns.max(1) as f64,
         window_speed,
         lda_windows,
+        tilt: tokens
+            .chunks_exact(fl)
+            .map(|f| crate::lm::posture::frame_tilt(f, vocab.bins))
+            .collect(),
+        lowest: (0..n)
+            .map(|f| {
+                (0..j)
+                    .map(|k| p[f * j + k][1])
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .collect(),
     })
 }
 
