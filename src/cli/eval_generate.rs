@@ -167,7 +167,7 @@ pub fn run(
         println!("  {}: {} %", r.sampling, w.join(" / "));
     }
     println!(
-        "frames tilted past 99 % of real training frames ({:.0}°) / lowest joint off their 0.5–99.5 % band ({:.3}–{:.3} m) (held-out real):",
+        "frames tilted past 99 % of real training frames ({:.0}°) / lowest joint off their 0.5–99.5 % band widened 2.5 cm ({:.3}–{:.3} m) (held-out real):",
         rows.first().map_or(f64::NAN, |r| r.tilt_max),
         rows.first().map_or(f64::NAN, |r| r.floor_band[0]),
         rows.first().map_or(f64::NAN, |r| r.floor_band[1])

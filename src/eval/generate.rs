@@ -38,6 +38,12 @@ use std::path::Path;
 mod clip;
 use clip::{clip_stats, diversity, ClipStats};
 
+/// How far past the real frames' floor band a lowest joint may go before
+/// the frame counts as sunk or floating (metres): the real band's lower
+/// edge is a flat foot on the floor to the millimetre, and a pointed toe
+/// a centimetre or two lower is not a body in the floor.
+pub const FLOOR_SLACK: f64 = 0.025;
+
 /// One row: a label kind under one sampling setting.
 #[derive(Clone, Debug, Serialize)]
 pub struct GenRow {
@@ -75,13 +81,15 @@ pub struct GenRow {
     /// and held-out real.
     pub tilt_out: f64,
     pub tilt_out_real: f64,
-    /// Frames whose lowest joint is off the floor's band: below the real
-    /// training frames' 0.5th or above their 99.5th percentile (sunk into
-    /// the floor, floating), generated and held-out real.
+    /// Frames whose lowest joint is off the floor's band: more than
+    /// [`FLOOR_SLACK`] below the real training frames' 0.5th percentile or
+    /// above their 99.5th (sunk into the floor, floating), generated and
+    /// held-out real.
     pub floor_out: f64,
     pub floor_out_real: f64,
     /// The bands: the tilt's 99th percentile (degrees) and the lowest
-    /// joint's 0.5th–99.5th (metres) over the real training frames.
+    /// joint's 0.5th–99.5th (metres, widened by FLOOR_SLACK) over the real
+    /// training frames.
     pub tilt_max: f64,
     pub floor_band: [f64; 2],
     pub seconds_per_clip: f64,
@@ -337,8 +345,8 @@ pub fn eval_generate(
     let (train_tilt, train_low) = (sorted(|s| &s.tilt), sorted(|s| &s.lowest));
     let tilt_max = super::percentile(&train_tilt, 0.99);
     let (low_lo, low_hi) = (
-        super::percentile(&train_low, 0.005),
-        super::percentile(&train_low, 0.995),
+        super::percentile(&train_low, 0.005) - FLOOR_SLACK,
+        super::percentile(&train_low, 0.995) + FLOOR_SLACK,
     );
     let out_share = |clips: &[(String, &ClipStats)]| -> (f64, f64) {
         let share =
