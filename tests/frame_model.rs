@@ -590,13 +590,14 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         exemplar_modes: vec![false],
         candidates: vec![1],
         rank_every: 0,
-        // The AIST++-VRM clips dance in place: the root-from-feet row is
-        // not made (nothing real to compare travel with).
+        // The AIST++-VRM clips dance in place: both rows drop the ground
+        // path (nothing real to compare travel with); the feet's row sets
+        // the height from the feet.
         root_from_feet: vec![false, true],
     };
     let mut said = Vec::new();
     let rows = eval_generate(&model, &dir, &o, &mut |l| said.push(l)).unwrap();
-    assert_eq!(rows.len(), 2);
+    assert_eq!(rows.len(), 4);
     for r in &rows {
         assert!(r.labels >= 2 && r.clips == r.labels, "{r:?}");
         assert!(
@@ -618,12 +619,19 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         assert!(r.tilt_out_real < 0.05 && r.floor_out_real < 0.05, "{r:?}");
         assert!((0.0..=1.0).contains(&r.tilt_out) && (0.0..=1.0).contains(&r.floor_out));
     }
-    // Each row names its sampling.
+    // Each row names its sampling and root; the feet's rows differ from
+    // the model's in the height alone, so everything measured root-relative
+    // or from the tokens is the same.
     assert_eq!(rows[0].sampling, "greedy");
+    assert_eq!(rows[1].sampling, "greedy +root-from-feet");
     assert_eq!(
-        rows[1].sampling,
+        rows[2].sampling,
         "t=1 top_k=0 top_p=0.95 keep_near=2 max_jump=48"
     );
+    for p in rows.chunks(2) {
+        assert_eq!(p[0].cond_acc, p[1].cond_acc);
+        assert!((p[0].jerk_ratio - p[1].jerk_ratio).abs() < 1e-9 * p[0].jerk_ratio.max(1.0));
+    }
     // Style exemplars from the training side only: none of their sources
     // is a held-out clip; rows with and without them, side by side.
     let (val, train) =

@@ -117,8 +117,9 @@ pub struct GenOptions {
     pub rank_every: usize,
     /// How each generated clip's root travels, one row per entry: `false`
     /// as its tokens carry it, `true` rebuilt from its feet
-    /// ([`crate::motion::contact`]). Ignored (one row) where the real clips
-    /// have no root trajectory.
+    /// ([`crate::motion::contact`]) and set on the floor. Where the real
+    /// clips have no root trajectory the path is dropped either way, and
+    /// the rows differ in the height alone.
     pub root_from_feet: Vec<bool>,
 }
 
@@ -379,11 +380,10 @@ pub fn eval_generate(
         .flat_map(|s| o.exemplar_modes.iter().map(move |&e| (s, e)))
         .flat_map(|(s, e)| o.candidates.iter().map(move |&n| (s, e, n)))
         .collect();
-    let root_modes: Vec<bool> = if in_place {
-        vec![false]
-    } else {
-        o.root_from_feet.clone()
-    };
+    // Where the real clips stay in place the feet's ground path is dropped
+    // with the rest, but the height they set (on the floor, not floating)
+    // is still measured.
+    let root_modes = o.root_from_feet.clone();
     for (sampling, with_exemplar, candidates) in runs {
         let t0 = std::time::Instant::now();
         let mut made: Vec<(String, Vec<u32>)> = Vec::new();

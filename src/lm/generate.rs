@@ -504,7 +504,7 @@ impl FrameDecoder {
         let sk = vocab.skeleton_def().ok_or_else(|| {
             LmError::invalid("model", "vocabulary.skeleton", vocab.skeleton.clone())
         })?;
-        self.feet = Some(crate::motion::contact::FootLock::new(&sk, vocab.fps));
+        self.feet = Some(crate::motion::contact::FootLock::new(&sk));
         Ok(self)
     }
     /// One frame: (rotations per joint, root translation).
