@@ -690,9 +690,40 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     let (fm, cm) = (feet.output.unwrap(), carried.output.unwrap());
     assert_eq!(fm.rotations, cm.rotations);
     assert_ne!(fm.translation, cm.translation);
-    // Heights are the model's own.
-    for (a, b) in fm.translation.chunks(3).zip(cm.translation.chunks(3)) {
-        assert_eq!(a[1], b[1]);
+    // Heights are the model's, moved so the lowest ankle stands on the
+    // floor unless the body is in the air (FootLock::ground_lift, frame by
+    // frame on the model's own pose).
+    {
+        use choreo::motion::contact::FootLock;
+        use choreo::motion::{Motion, Skeleton};
+        let sk = Skeleton::smpl13();
+        let j = sk.len();
+        let rot: Vec<[f64; 3]> = cm.rotations.chunks(3).map(|r| [r[0], r[1], r[2]]).collect();
+        let trans: Vec<[f64; 3]> = cm
+            .translation
+            .chunks(3)
+            .map(|t| [t[0], t[1], t[2]])
+            .collect();
+        let m = Motion::new("m", cm.fps, sk.clone(), trans, rot, Default::default()).unwrap();
+        let pose = m.positions();
+        let lock = FootLock::new(&sk);
+        let mut moved = 0;
+        for (f, (a, b)) in fm
+            .translation
+            .chunks(3)
+            .zip(cm.translation.chunks(3))
+            .enumerate()
+        {
+            let lift = lock.ground_lift(&pose[f * j..(f + 1) * j]);
+            assert!(
+                (a[1] - (b[1] + lift)).abs() < 1e-9,
+                "frame {f}: {} vs {} + {lift}",
+                a[1],
+                b[1]
+            );
+            moved += (lift != 0.0) as usize;
+        }
+        assert!(moved > 0, "no frame's height moved");
     }
     let mut st = client.generate_stream(feet_req).await.unwrap().into_inner();
     let mut strans = Vec::new();
