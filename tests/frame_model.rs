@@ -512,6 +512,46 @@ fn bad_frame_manifests_are_clear_errors() {
     let recommended = choreo::lm::generate::RECOMMENDED.max_jump;
     assert_eq!(m3.default_max_jump([&other]), recommended);
     assert_eq!(m3.default_max_jump(&Vec::<String>::new()), recommended);
+    // Per-kind top_p and posture defaults: an unknown kind, a top_p or a
+    // posture out of range, or a posture without postures.json are
+    // start-up errors naming the field; the first listed kind's apply.
+    let with_s = |extra: serde_json::Value| {
+        let mut j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&mf3).unwrap()).unwrap();
+        j["max_jump_by_kind"] = serde_json::json!({});
+        j["sampling_by_kind"] = extra;
+        std::fs::write(&mf3, j.to_string()).unwrap();
+        MotionModel::load(dir3.path())
+    };
+    for (bad, field) in [
+        (
+            serde_json::json!({"tempo": {"top_p": 1.0}}),
+            "sampling_by_kind.tempo".to_string(),
+        ),
+        (
+            serde_json::json!({kinds[0].clone(): {"top_p": 1.5}}),
+            format!("sampling_by_kind.{}.top_p", kinds[0]),
+        ),
+        (
+            serde_json::json!({kinds[0].clone(): {"posture": 11.0}}),
+            format!("sampling_by_kind.{}.posture", kinds[0]),
+        ),
+        (
+            serde_json::json!({kinds[0].clone(): {"posture": 2.0}}),
+            format!("sampling_by_kind.{}.posture", kinds[0]),
+        ),
+        (
+            serde_json::json!({kinds[0].clone(): {"temp": 2.0}}),
+            "temp".to_string(),
+        ),
+    ] {
+        let e = with_s(bad.clone()).err().unwrap().to_string();
+        assert!(e.contains(&field), "{bad}: {e}");
+    }
+    let m4 = with_s(serde_json::json!({kinds[0].clone(): {"top_p": 0.8}})).unwrap();
+    let d = m4.kind_sampling([&other, &kinds[0]]);
+    assert_eq!((d.top_p, d.posture), (Some(0.8), None));
+    assert_eq!(m4.kind_sampling([&other]), Default::default());
     let mut labels = Labels::new();
     labels.insert("style".into(), "furious".into());
     let dir2 = export(&net, &v);

@@ -842,7 +842,9 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         let g = client.generate(g).await.unwrap().into_inner();
         assert_eq!(
             g.sampling.as_ref().unwrap().posture,
-            if field == "posture" { ok } else { -1.0 },
+            // Unnamed: the genre's default (the bundled manifest's
+            // sampling_by_kind), as a request spells it.
+            if field == "posture" { ok } else { 2.0 },
             "{field}: the answer's posture as a request spells it"
         );
         let mut sampling = json!({"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7});
@@ -883,18 +885,34 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         );
     }
 
-    // A request naming no max_jump gets the model's default for its labels'
-    // kinds (the bundled manifest: 24 for Bandai's style and content, else
-    // the recommended 48), and the answer says which sampling ran.
-    for (labels, sampling, want) in [
-        (json!({"style": "angry"}), json!(null), 24),
-        (json!({"genre": "BR"}), json!(null), 48),
+    // A request naming no max_jump, top_p or posture gets the model's
+    // default for its labels' kinds (the bundled manifest: max_jump 24 for
+    // Bandai's style and content, else the recommended 48; top_p 1 and
+    // posture 2 for AIST++'s genre, else 0.95 and none), and the answer
+    // says which sampling ran.
+    for (labels, sampling, (want, top_p, posture)) in [
+        (json!({"style": "angry"}), json!(null), (24, 0.95, 0.0)),
+        (json!({"genre": "BR"}), json!(null), (48, 1.0, 2.0)),
         (
             json!({"style": "angry", "genre": "BR"}),
             json!({"seed": 3}),
-            24,
+            (24, 1.0, 2.0),
         ),
-        (json!({"style": "angry"}), json!({"max_jump": 30}), 30),
+        (
+            json!({"style": "angry"}),
+            json!({"max_jump": 30}),
+            (30, 0.95, 0.0),
+        ),
+        (
+            json!({"genre": "BR"}),
+            json!({"top_p": 0.9}),
+            (48, 0.9, 2.0),
+        ),
+        (
+            json!({"genre": "BR"}),
+            json!({"posture": 0}),
+            (48, 1.0, 0.0),
+        ),
     ] {
         let mut req = json!({"labels": labels, "frames": 4});
         if !sampling.is_null() {
@@ -907,6 +925,11 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         assert_eq!(status, 200, "{r}");
         let s = &r["sampling"];
         assert_eq!(s["max_jump"], want, "{labels}: {s}");
+        assert_eq!(
+            (s["top_p"].as_f64(), s["posture"].as_f64()),
+            (Some(top_p), Some(posture)),
+            "{labels}: {s}"
+        );
         assert_eq!(
             (s["temperature"].as_f64(), s["keep_near"].as_u64()),
             (Some(1.0), Some(2)),
@@ -926,6 +949,19 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         .into_inner();
     let s = g.sampling.expect("gRPC answer's sampling");
     assert_eq!((s.max_jump, s.keep_near, s.temperature), (24, 2, 1.0));
+    let g = client
+        .generate(pb::GenerateRequest {
+            labels: [("genre".to_string(), "BR".to_string())]
+                .into_iter()
+                .collect(),
+            frames: 4,
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let s = g.sampling.expect("gRPC answer's sampling");
+    assert_eq!((s.max_jump, s.top_p, s.posture), (48, 1.0, 2.0));
 
     // Streaming gives the one-shot frames, one message each.
     let mut stream = client.generate_stream(greq).await.unwrap().into_inner();
@@ -1068,15 +1104,15 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .unwrap();
     for want in [
         // The prompt request, the top_p 0, keep_near, max_jump and posture
-        // ones, the four per-kind max_jump defaults; the 400s: the bad
+        // ones, the six per-kind defaults; the 400s: the bad
         // exemplar, keep_near 65, max_jump 181, posture 11, the bad label
         // and the over-long request; over gRPC the prompt request, best of
         // 3, steered, root model and feet, exemplar none, top_p 0, keep_near
-        // 1, max_jump 2, posture 1.5 and the style default; a steered
+        // 1, max_jump 2, posture 1.5, the style and the genre defaults; a steered
         // stream, a feet stream, and a stream asking for 2 candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 9",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 11",
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 6",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 11",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 12",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 3",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",

@@ -112,12 +112,11 @@ impl Choreo for ChoreoGrpc {
         })?;
         let (skeleton, fps) = service::generate::stream_format(&self.state)?;
         let labels = first.labels.clone().into_iter().collect();
-        let session = service::duet::DuetSession::open(
-            &self.state,
-            &labels,
-            &first.prompt_joints,
-            (sampling(first.sampling), max_jump_named(&first.sampling)),
-        )?;
+        let session =
+            service::duet::DuetSession::open(&self.state, &labels, &first.prompt_joints, {
+                let n = named(&first.sampling);
+                (sampling(first.sampling.clone()), n)
+            })?;
         let (frames_in, frames_out) = service::duet::duet(session);
         tokio::spawn(async move {
             let mut pending = first.frame;

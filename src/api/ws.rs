@@ -196,10 +196,7 @@ async fn duet_socket(state: Arc<Choreo>, mut socket: WebSocket) {
         &state,
         &setup.labels,
         &setup.prompt_joints,
-        (
-            setup.sampling.to_sampling(),
-            setup.sampling.max_jump.is_some(),
-        ),
+        (setup.sampling.to_sampling(), setup.sampling.named()),
     ) {
         Ok(s) => s,
         Err(e) => return fail(socket, e).await,

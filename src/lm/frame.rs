@@ -242,6 +242,23 @@ pub struct FrameManifest {
     /// (README, "Sampling defaults per label kind").
     #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub max_jump_by_kind: std::collections::BTreeMap<String, u32>,
+    /// The `top_p` and `posture` a request gets when it names them not,
+    /// per label kind it asks for (the first of its kinds, in name order,
+    /// that lists the field; none: the recommended sampling's). `choreo
+    /// eval generate` scores them per corpus (README, "AIST++ dance: the
+    /// posture with the whole nucleus").
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub sampling_by_kind: std::collections::BTreeMap<String, KindSampling>,
+}
+
+/// A label kind's sampling defaults ([`FrameManifest::sampling_by_kind`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KindSampling {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub top_p: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub posture: Option<f64>,
 }
 
 pub const FRAME_KIND: &str = "motion-frame-lm";
@@ -356,6 +373,30 @@ impl FrameManifest {
                     &name,
                     "max_jump_by_kind",
                     format!("{kind}: {j} (want 1 to 180 bins)"),
+                ));
+            }
+        }
+        for (kind, d) in &m.sampling_by_kind {
+            let field = format!("sampling_by_kind.{kind}");
+            if !m.vocabulary.labels.contains_key(kind) {
+                return Err(super::LmError::invalid(
+                    &name,
+                    field,
+                    "not a label kind of the vocabulary",
+                ));
+            }
+            if let Some(p) = d.top_p.filter(|p| !(*p > 0.0 && *p <= 1.0)) {
+                return Err(super::LmError::invalid(
+                    &name,
+                    format!("{field}.top_p"),
+                    format!("{p} (want 0 < top_p ≤ 1)"),
+                ));
+            }
+            if let Some(w) = d.posture.filter(|w| !(0.0..=10.0).contains(w)) {
+                return Err(super::LmError::invalid(
+                    &name,
+                    format!("{field}.posture"),
+                    format!("{w} (want 0 to 10)"),
                 ));
             }
         }

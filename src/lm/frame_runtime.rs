@@ -61,6 +61,20 @@ impl FrameSession {
             },
         )?;
         let postures = super::posture::Postures::load(path, &manifest.vocabulary)?;
+        if postures.is_none() {
+            if let Some(kind) = manifest
+                .sampling_by_kind
+                .iter()
+                .find(|(_, d)| d.posture.is_some_and(|w| w > 0.0))
+                .map(|(k, _)| k)
+            {
+                return Err(super::LmError::invalid(
+                    &name("manifest.json"),
+                    format!("sampling_by_kind.{kind}.posture"),
+                    "the folder has no postures.json to pull toward (choreo postures writes one)",
+                ));
+            }
+        }
         Ok(FrameSession {
             manifest,
             postures,

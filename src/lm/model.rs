@@ -82,6 +82,26 @@ impl MotionModel {
         }
     }
 
+    /// The `top_p` and `posture` defaults for a request asking for these
+    /// label kinds and naming them not: per field, the first kind (in the
+    /// order given) the manifest's `sampling_by_kind` lists it for.
+    pub fn kind_sampling<'a>(
+        &self,
+        kinds: impl IntoIterator<Item = &'a String>,
+    ) -> super::frame::KindSampling {
+        let mut out = super::frame::KindSampling::default();
+        if let MotionModel::Frame(s) = self {
+            for d in kinds
+                .into_iter()
+                .filter_map(|k| s.manifest.sampling_by_kind.get(k))
+            {
+                out.top_p = out.top_p.or(d.top_p);
+                out.posture = out.posture.or(d.posture);
+            }
+        }
+        out
+    }
+
     /// Whether `sampling.posture` can pull toward the labels' postures
     /// (a frame model with postures.json).
     pub fn has_postures(&self) -> bool {

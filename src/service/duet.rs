@@ -2,7 +2,7 @@
 //! out, one worker permit held for the session's life. REST's WebSocket
 //! and gRPC's `Duet` both run [`duet`].
 
-use super::generate::{model, model_max_jump, StreamFrame};
+use super::generate::{model, model_defaults, StreamFrame};
 use super::{ApiError, Choreo};
 use crate::lm::Sampling;
 use crate::motion::{Labels, Motion};
@@ -21,10 +21,10 @@ impl DuetSession {
         state: &Choreo,
         labels: &Labels,
         joints: &[String],
-        (mut sampling, max_jump_named): (Sampling, bool),
+        (mut sampling, named): (Sampling, super::generate::Named),
     ) -> Result<DuetSession, ApiError> {
         let session = model(state)?;
-        model_max_jump(&session, labels, &mut sampling, max_jump_named);
+        model_defaults(&session, labels, &mut sampling, named);
         let duet = crate::lm::duet::Duet::new(session, labels, joints, sampling)?;
         let permit = state
             .workers

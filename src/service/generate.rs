@@ -52,10 +52,10 @@ pub struct GenerateParams {
     /// A motion the generation continues.
     pub seed_motion: Option<MotionInput>,
     pub sampling: Sampling,
-    /// Whether the request named `max_jump`; if not, the model's default
-    /// for the label kinds asked for replaces `sampling.max_jump`
-    /// ([`MotionModel::default_max_jump`]).
-    pub max_jump_named: bool,
+    /// Which of `max_jump`, `top_p` and `posture` the request named; the
+    /// others get the model's defaults for the label kinds asked for
+    /// ([`model_defaults`]).
+    pub named: Named,
     /// `auto` or empty (a style exemplar of the labels seeds a generation
     /// that has labels and no seed motion), or `none`.
     pub exemplar: String,
@@ -134,17 +134,34 @@ impl GenerateJob {
     }
 }
 
-/// A request that named no `max_jump` gets the model's default for the
-/// label kinds it asks for ([`MotionModel::default_max_jump`]); generate,
-/// its streams and the duet alike.
-pub(super) fn model_max_jump(
+/// Which sampling fields a request named (the others take the model's
+/// per-kind defaults, [`model_defaults`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Named {
+    pub max_jump: bool,
+    pub top_p: bool,
+    pub posture: bool,
+}
+
+/// What a request did not name of `max_jump`, `top_p` and `posture` gets
+/// the model's default for the label kinds it asks for
+/// ([`MotionModel::default_max_jump`], [`MotionModel::kind_sampling`]);
+/// generate, its streams and the duet alike.
+pub(super) fn model_defaults(
     session: &MotionModel,
     labels: &Labels,
     s: &mut Sampling,
-    named: bool,
+    named: Named,
 ) {
-    if !named {
+    if !named.max_jump {
         s.max_jump = session.default_max_jump(labels.keys());
+    }
+    let d = session.kind_sampling(labels.keys());
+    if let (false, Some(p)) = (named.top_p, d.top_p) {
+        s.top_p = p;
+    }
+    if let (false, Some(w)) = (named.posture, d.posture) {
+        s.posture = w;
     }
 }
 
@@ -156,7 +173,7 @@ pub async fn generate_job(
 ) -> Result<GenerateJob, ApiError> {
     let session = model(state)?;
     let vocab = session.vocabulary();
-    model_max_jump(&session, &p.labels, &mut p.sampling, p.max_jump_named);
+    model_defaults(&session, &p.labels, &mut p.sampling, p.named);
     if p.frames > MAX_GENERATE_FRAMES {
         return Err(ApiError::invalid(
             "frames",

@@ -263,6 +263,7 @@ pub fn export(
         metrics,
         training,
         max_jump_by_kind: Default::default(),
+        sampling_by_kind: Default::default(),
     };
     m.save(dir)?;
     Ok(m)

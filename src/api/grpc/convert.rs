@@ -79,9 +79,17 @@ pub fn motion_pb(m: &Motion) -> pb::Motion {
     }
 }
 
-/// Whether a request named its `max_jump` (proto3: 0 = not named).
-pub(super) fn max_jump_named(s: &Option<pb::Sampling>) -> bool {
-    s.as_ref().is_some_and(|s| s.max_jump != 0)
+/// Which of `max_jump`, `top_p` and `posture` a request named (proto3: 0
+/// = not named; an explicit setting, any of temperature, top_k, top_p or
+/// keep_near set, names its top_p, 0 there meaning no cut).
+pub(super) fn named(s: &Option<pb::Sampling>) -> crate::service::generate::Named {
+    let d = pb::Sampling::default();
+    let s = s.as_ref().unwrap_or(&d);
+    crate::service::generate::Named {
+        max_jump: s.max_jump != 0,
+        top_p: s.temperature != 0.0 || s.top_k != 0 || s.top_p != 0.0 || s.keep_near != 0,
+        posture: s.posture != 0.0,
+    }
 }
 
 /// A request's sampling; none named (absent, or only a seed) = the
@@ -139,7 +147,7 @@ pub(super) fn generate_params(
             .seed_motion
             .map(|p| source("seed_motion", Some(p)))
             .transpose()?,
-        max_jump_named: max_jump_named(&r.sampling),
+        named: named(&r.sampling),
         sampling: sampling(r.sampling),
         exemplar: r.exemplar,
         candidates: r.candidates,

@@ -197,6 +197,16 @@ pub struct SamplingJson {
 }
 
 impl SamplingJson {
+    /// Which of `max_jump`, `top_p` and `posture` the request named; an
+    /// explicit temperature names top_p too (absent there = no cut).
+    pub fn named(&self) -> crate::service::generate::Named {
+        crate::service::generate::Named {
+            max_jump: self.max_jump.is_some(),
+            top_p: self.top_p.is_some() || self.temperature.is_some(),
+            posture: self.posture.is_some(),
+        }
+    }
+
     /// `top_p` 0 means all (no nucleus cut), as over gRPC, whose proto3
     /// field cannot tell 0 from absent.
     pub fn to_sampling(&self) -> crate::lm::Sampling {
@@ -269,7 +279,7 @@ impl GenerateBody {
                 .map(|x| source("seed_motion", Some(x)))
                 .transpose()?,
             sampling: self.sampling.to_sampling(),
-            max_jump_named: self.sampling.max_jump.is_some(),
+            named: self.sampling.named(),
             exemplar: self.exemplar,
             candidates: self.candidates,
             rank_every: self.rank_every,
