@@ -936,32 +936,28 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             "{s}"
         );
     }
-    let mut style = std::collections::HashMap::new();
-    style.insert("style".to_string(), "angry".to_string());
-    let g = client
-        .generate(pb::GenerateRequest {
-            labels: style,
-            frames: 4,
-            ..Default::default()
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    let s = g.sampling.expect("gRPC answer's sampling");
-    assert_eq!((s.max_jump, s.keep_near, s.temperature), (24, 2, 1.0));
-    let g = client
-        .generate(pb::GenerateRequest {
-            labels: [("genre".to_string(), "BR".to_string())]
-                .into_iter()
-                .collect(),
-            frames: 4,
-            ..Default::default()
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    let s = g.sampling.expect("gRPC answer's sampling");
-    assert_eq!((s.max_jump, s.top_p, s.posture), (48, 1.0, 2.0));
+    // Over gRPC, a request with no sampling: Bandai's style gets max_jump
+    // 24 and the plain nucleus, AIST++'s genre max_jump 48, top_p 1 and
+    // posture 2.
+    for (kind, value, want) in [
+        ("style", "angry", (24, 0.95, -1.0)),
+        ("genre", "BR", (48, 1.0, 2.0)),
+    ] {
+        let g = client
+            .generate(pb::GenerateRequest {
+                labels: [(kind.to_string(), value.to_string())]
+                    .into_iter()
+                    .collect(),
+                frames: 4,
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        let s = g.sampling.expect("gRPC answer's sampling");
+        assert_eq!((s.keep_near, s.temperature), (2, 1.0));
+        assert_eq!((s.max_jump, s.top_p, s.posture), want, "{kind}");
+    }
 
     // Streaming gives the one-shot frames, one message each.
     let mut stream = client.generate_stream(greq).await.unwrap().into_inner();
