@@ -115,7 +115,7 @@ impl Choreo for ChoreoGrpc {
         let session =
             service::duet::DuetSession::open(&self.state, &labels, &first.prompt_joints, {
                 let n = named(&first.sampling);
-                (sampling(first.sampling.clone()), n)
+                (sampling(first.sampling), n)
             })?;
         let (frames_in, frames_out) = service::duet::duet(session);
         tokio::spawn(async move {

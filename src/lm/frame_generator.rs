@@ -250,7 +250,6 @@ impl FrameGenerator {
         for s in 0..c.slots {
             session.local_step(&mut self.lstate, &mut local, &self.h, inp, vel[s], prev[s])?;
             let out = &self.lstate.out;
-            let pull = self.pull.as_ref().map(|p| p.slot(s, &frame, p1.as_deref()));
             let tok = match forced[s] {
                 Some(t) if (t as usize) < c.bins => t,
                 Some(t) => {
@@ -265,7 +264,10 @@ impl FrameGenerator {
                     &mut self.rng,
                     c,
                     (out.data(0), out.data(1)),
-                    pull.as_deref(),
+                    self.pull
+                        .as_ref()
+                        .map(|p| p.slot(s, &frame, p1.as_deref()))
+                        .as_deref(),
                     p1.as_ref().map(|p| p[s]),
                     c.wraps(s),
                 ),

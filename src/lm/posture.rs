@@ -24,6 +24,7 @@
 use super::LmError;
 use crate::motion::Labels;
 use crate::tokenize::vocab::Vocabulary;
+use crate::tokenize::UniformBins;
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 use std::collections::BTreeMap;
@@ -79,14 +80,9 @@ pub fn up_tilt_degrees(aa: [f64; 3]) -> f64 {
 }
 
 /// The root's tilt (degrees) in a frame's tokens (slots 0–2 the root
-/// joint's axis-angle).
-pub fn frame_tilt(frame: &[u32], bins: usize) -> f64 {
-    up_tilt_degrees([0, 1, 2].map(|i| angle_of(frame[i], bins)))
-}
-
-/// An angle bin's value (radians): bins uniform over [−π, π].
-pub fn angle_of(bin: u32, bins: usize) -> f64 {
-    -std::f64::consts::PI + (bin as f64 + 0.5) * std::f64::consts::TAU / bins as f64
+/// joint's axis-angle, decoded by the vocabulary's angle bins).
+pub fn frame_tilt(frame: &[u32], angles: &UniformBins) -> f64 {
+    up_tilt_degrees([0, 1, 2].map(|i| angles.decode(frame[i])))
 }
 
 use super::frame::slot_wraps as wraps;
@@ -109,6 +105,7 @@ impl Postures {
         let fl = vocab.frame_len();
         let slots = fl - 1;
         let bins = vocab.bins;
+        let angles = vocab.angle_bins();
         let mut labels = BTreeMap::new();
         let mut frames = BTreeMap::new();
         let mut tilt = BTreeMap::new();
@@ -142,7 +139,7 @@ impl Postures {
                     .insert(v.clone(), stats);
                 let tilts = seqs
                     .iter()
-                    .flat_map(|t| t.chunks_exact(fl).map(|f| frame_tilt(f, bins)));
+                    .flat_map(|t| t.chunks_exact(fl).map(|f| frame_tilt(f, &angles)));
                 let mut st = slot_stat(tilts, 360.0, false);
                 st.spread = st.spread.max(MIN_TILT_SPREAD);
                 tilt.entry(k.clone())
@@ -283,7 +280,7 @@ impl Postures {
             offsets,
             tilt,
             weight,
-            bins: self.bins,
+            angles: UniformBins::angles(self.bins),
         })
     }
 }
@@ -295,7 +292,7 @@ pub struct Pull {
     pub offsets: Vec<Vec<f32>>,
     tilt: Vec<SlotStat>,
     weight: f64,
-    bins: usize,
+    angles: UniformBins,
 }
 
 impl Pull {
@@ -315,12 +312,12 @@ impl Pull {
             } else {
                 prev.and_then(|p| p.get(i))
             };
-            *a = b.map_or(0.0, |&b| angle_of(b, self.bins));
+            *a = b.map_or(0.0, |&b| self.angles.decode(b));
         }
         Cow::Owned(
-            (0..self.bins)
+            (0..self.angles.bins)
                 .map(|b| {
-                    aa[s] = angle_of(b as u32, self.bins);
+                    aa[s] = self.angles.decode(b as u32);
                     let t = up_tilt_degrees(aa);
                     let x: f64 = self
                         .tilt

@@ -126,6 +126,14 @@ impl UniformBins {
         }
         Ok(UniformBins { bins, lo, hi })
     }
+    /// An axis-angle component's bins: uniform over [−π, π] (SPEC §4).
+    pub fn angles(bins: usize) -> UniformBins {
+        UniformBins {
+            bins,
+            lo: -PI,
+            hi: PI,
+        }
+    }
     pub fn width(&self) -> f64 {
         (self.hi - self.lo) / self.bins as f64
     }

@@ -27,7 +27,6 @@ use crate::motion::rotation::{wrap_axis_angle, Vec3};
 use crate::motion::{Labels, Motion, MotionError, Skeleton};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
-use std::f64::consts::PI;
 
 pub const VOCAB_VERSION: u32 = 1;
 pub const SPECIALS: [&str; 4] = ["<sep>", "<mask>", "<pad>", "<bos>"];
@@ -306,12 +305,9 @@ impl Vocabulary {
             .collect()
     }
 
-    fn angle_bins(&self) -> UniformBins {
-        UniformBins {
-            bins: self.bins,
-            lo: -PI,
-            hi: PI,
-        }
+    /// The joint-angle slots' bins.
+    pub fn angle_bins(&self) -> UniformBins {
+        UniformBins::angles(self.bins)
     }
     fn velocity_bins(&self) -> UniformBins {
         UniformBins {

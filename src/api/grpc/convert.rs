@@ -87,9 +87,15 @@ pub(super) fn named(s: &Option<pb::Sampling>) -> crate::service::generate::Named
     let s = s.as_ref().unwrap_or(&d);
     crate::service::generate::Named {
         max_jump: s.max_jump != 0,
-        top_p: s.temperature != 0.0 || s.top_k != 0 || s.top_p != 0.0 || s.keep_near != 0,
+        top_p: explicit(s),
         posture: s.posture != 0.0,
     }
+}
+
+/// Whether a sampling message sets any of temperature, top_k, top_p or
+/// keep_near: an explicit setting; else the recommended one.
+fn explicit(s: &pb::Sampling) -> bool {
+    s.temperature != 0.0 || s.top_k != 0 || s.top_p != 0.0 || s.keep_near != 0
 }
 
 /// A request's sampling; none named (absent, or only a seed) = the
@@ -115,7 +121,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.posture.max(0.0)
     };
-    if s.temperature == 0.0 && s.top_k == 0 && s.top_p == 0.0 && s.keep_near == 0 {
+    if !explicit(&s) {
         return crate::lm::Sampling {
             guidance,
             max_jump,

@@ -151,10 +151,13 @@ pub(super) fn clip_stats(
         skate: skate / ns.max(1) as f64,
         window_speed,
         lda_windows,
-        tilt: tokens
-            .chunks_exact(fl)
-            .map(|f| crate::lm::posture::frame_tilt(f, vocab.bins))
-            .collect(),
+        tilt: {
+            let angles = vocab.angle_bins();
+            tokens
+                .chunks_exact(fl)
+                .map(|f| crate::lm::posture::frame_tilt(f, &angles))
+                .collect()
+        },
         lowest: (0..n)
             .map(|f| {
                 (0..j)
