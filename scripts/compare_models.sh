@@ -13,10 +13,12 @@ secs=${2:-2700}
 flat_steps=${3:-950}
 frame_steps=${4:-410}
 data=${CHOREO_DATA:-../shared/data}
-T=target/release/choreo-train
-C=target/release/choreo
 cargo build --release --all-features --bins
-mkdir -p "$run"
+mkdir -p "$run/bin"
+# The run's own copies: a rebuild while it runs does not change them.
+cp target/release/choreo target/release/choreo-train "$run/bin/"
+T=$run/bin/choreo-train
+C=$run/bin/choreo
 # 1. Training: the same corpora (every one under --data), split and mirrors.
 RAYON_NUM_THREADS=1 $T train --out "$run/flat" --d-model 128 --layers 3 --heads 4 --frames 8 \
     --steps "$flat_steps" --eval-every 100 --max-seconds "$secs" --export > "$run/flat.log" 2>&1 &
@@ -27,7 +29,8 @@ wait
 #    baselines (the frame model's table has them; the flat model's is one
 #    run per corpus, so the same held-out sequences).
 $T eval-frame --checkpoint "$run/frame" --export "$run/frame/export" > "$run/frame.bits.json"
-for c in aistpp-vrm bandai aistpp cmu; do
+# (CMU is one sequence, which the split keeps for training: nothing held out.)
+for c in aistpp-vrm bandai aistpp; do
     $T eval --checkpoint "$run/flat" --corpus "$c" > "$run/flat.bits.$c.json"
 done
 $T eval --checkpoint "$run/flat" > "$run/flat.bits.all.json"
@@ -36,17 +39,27 @@ $T eval --checkpoint "$run/flat" > "$run/flat.bits.all.json"
 ex_data=(--data "$data/bandai" --data "$data/aistpp-vrm" --data "$data/aistpp" --data "$data/cmu")
 $C exemplars --model "$run/frame/export" "${ex_data[@]}"
 $C exemplars --model "$run/flat/export" --seconds 0.4 "${ex_data[@]}"
+# Label postures for the frame model's posture pull (sampling.posture),
+# from the same training sequences (2 s; the flat GPT has no pull).
+$C postures --model "$run/frame/export" "${ex_data[@]}"
 # 4. Streaming speed, one sitting.
 $C bench model --model "$run/frame/export" --frames 600 > "$run/frame.bench.json"
 $C bench model --model "$run/flat/export" --frames 200 > "$run/flat.bench.json"
-# 5. Generation, both models side by side (single-threaded each, so two at once).
-for m in flat frame; do
-    (
-        $C eval generate --model "$run/$m/export" --data "$data/bandai" --labels style --per-label 2 \
-            --sampling 1:0:0.95:1:1,1:0:1 --exemplar both --json > "$run/$m.gen.bandai.json"
-        $C eval generate --model "$run/$m/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label 3 \
-            --sampling 1:0:0.95:1:1 --exemplar both --json > "$run/$m.gen.vrm.json"
-    ) &
-done
+# 5. Generation, both models side by side (single-threaded each, so two at
+#    once): the flat GPT at t 1, top-p 0.95 with and without its exemplar
+#    (its sampler has no keep_near, max_jump or posture); the frame model
+#    with exemplars at the API's default for each corpus's label and with
+#    the posture settings (Bandai: posture 2, max_jump 12; AIST++: posture 2,
+#    top-p 1, max_jump 48), its root from the model and from the feet.
+per=${GEN_PER_LABEL:-6}
+$C eval generate --model "$run/flat/export" --data "$data/bandai" --labels style --per-label "$per" \
+    --sampling 1:0:0.95 --exemplar both --json > "$run/flat.gen.bandai.json" &
+$C eval generate --model "$run/flat/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" \
+    --sampling 1:0:0.95 --exemplar both --json > "$run/flat.gen.vrm.json" &
+wait
+$C eval generate --model "$run/frame/export" --data "$data/bandai" --labels style --per-label "$per" \
+    --sampling 1:0:0.95:1:2:24,1:0:0.95:1:2:12:2 --exemplar auto --root both --json > "$run/frame.gen.bandai.json" &
+$C eval generate --model "$run/frame/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" \
+    --sampling 1:0:0.95:1:2:48,1:0:1:1:2:48:2 --exemplar auto --json > "$run/frame.gen.vrm.json" &
 wait
 echo "tables in $run"

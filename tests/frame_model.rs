@@ -644,11 +644,40 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
             r.fid_k_real.is_some_and(|x| x.is_finite() && x >= 0.0),
             "{r:?}"
         );
+        // The same-size real yardstick: as many real training segments
+        // as generated clips (here about ten), so FID's small-set bias
+        // makes it larger than the yardstick over every training segment.
+        let (same, all) = (r.fid_k_real_same_n.unwrap(), r.fid_k_real.unwrap());
+        assert!(same.is_finite() && same > all, "{r:?}");
+        // The features behind FID_k are named, each a real SMPL-24 joint
+        // and one of its three measures, worst first.
+        assert_eq!(r.fid_k_gaps.len(), 5, "{r:?}");
+        assert!(r.fid_k_gaps.iter().all(|g| g.spread >= 0.0
+            && g.z.is_finite()
+            && ["horizontal speed²", "vertical speed²", "acceleration"]
+                .iter()
+                .any(|m| g.feature.ends_with(m))));
+        assert!(r.fid_k_gaps.windows(2).all(|w| w[0].cost >= w[1].cost));
+        assert!(r.fid_k_gaps.iter().all(|g| g.cost >= g.z * g.z - 1e-12));
         // The bootstrap range of FID over the generated clips is ordered.
         if let Some([lo, hi]) = r.fid_k_range {
             assert!(lo.is_finite() && lo >= 0.0 && lo <= hi, "{r:?}");
         }
         assert!((0.0..=1.0).contains(&r.frozen) && (0.0..=1.0).contains(&r.cond_acc));
+        // One accuracy per asked-for value; each clip has the same number
+        // of judge windows, so their mean is the row's.
+        assert_eq!(r.cond_acc_by_label.len(), r.labels, "{r:?}");
+        let mean = r
+            .cond_acc_by_label
+            .values()
+            .map(|a| a.generated)
+            .sum::<f64>()
+            / r.labels as f64;
+        assert!((mean - r.cond_acc).abs() < 1e-9, "{r:?}");
+        assert!(r
+            .cond_acc_by_label
+            .values()
+            .all(|a| a.real.map_or(true, |x| (0.0..=1.0).contains(&x))));
         assert!(r.accel_ratio.is_finite() && r.jerk_ratio.is_finite());
         // The judge, fitted on real training windows, names real held-out
         // genres far above chance (1 in 10).
@@ -686,6 +715,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         &["genre".to_string()],
         1.0,
         1,
+        None,
         None,
     )
     .unwrap();

@@ -252,3 +252,25 @@ fn tract_and_ort_agree_on_the_flat_model() {
     assert!(scale > 0.1);
     assert!(whole < 1e-3 && step_worst < 1e-3, "{whole} {step_worst}");
 }
+
+/// The flat GPT has no label postures: a request that asks it to pull
+/// toward them is refused naming the field, not run without the pull.
+#[test]
+fn the_flat_model_refuses_a_posture_pull() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/flat");
+    let m = MotionModel::load(&dir).unwrap();
+    assert!(!m.has_postures());
+    let mut labels = Labels::new();
+    let (kind, values) = m.vocabulary().labels.iter().next().unwrap();
+    labels.insert(kind.clone(), values.iter().next().unwrap().clone());
+    let pulled = Sampling {
+        posture: 2.0,
+        ..Sampling::recommended(1)
+    };
+    let e = m.generator(&labels, &[], pulled).err().unwrap().to_string();
+    assert!(e.contains("sampling.posture") && e.contains("flat"), "{e}");
+    // Without the pull it generates.
+    let mut g = m.generator(&labels, &[], Sampling::recommended(1)).unwrap();
+    let fl = m.vocabulary().frame_len();
+    assert_eq!(g.next_frame(&vec![None; fl]).unwrap().len(), fl);
+}

@@ -2,7 +2,7 @@
 //! `choreo::eval::generate`).
 
 use anyhow::{bail, Context, Result};
-use choreo::eval::generate::{eval_generate, GenOptions};
+use choreo::eval::generate::{eval_generate, GenOptions, GenRow};
 use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use std::path::{Path, PathBuf};
@@ -130,19 +130,21 @@ pub fn run(
         PathBuf::from(data).display()
     );
     println!(
-        "| sampling | FID_k [5–95 % over resampled clips] (real) | FID_g [5–95 %] (real) | accel × | jerk × | skate × | frozen | diversity (real) | cond acc (real) | s/clip |"
+        "| sampling | FID_k [5–95 % over resampled clips] (real; real at this clip count) | FID_g [5–95 %] (real; same count) | accel × | jerk × | skate × | frozen | diversity (real) | cond acc (real) | s/clip |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|");
     for r in &rows {
         println!(
-            "| {} | {}{} ({}) | {}{} ({}) | {:.2} | {:.2} | {:.2} | {:.0} % | {:.2} ({:.2}) | {:.0} % ({:.0} %) | {:.2} |",
+            "| {} | {}{} ({}; {}) | {}{} ({}; {}) | {:.2} | {:.2} | {:.2} | {:.0} % | {:.2} ({:.2}) | {:.0} % ({:.0} %) | {:.2} |",
             r.sampling,
             f(r.fid_k),
             range(r.fid_k_range),
             f(r.fid_k_real),
+            f(r.fid_k_real_same_n),
             f(r.fid_g),
             range(r.fid_g_range),
             f(r.fid_g_real),
+            f(r.fid_g_real_same_n),
             r.accel_ratio,
             r.jerk_ratio,
             r.skate_ratio,
@@ -157,30 +159,66 @@ pub fn run(
     if rows.iter().any(|r| r.root_in_place) {
         println!("(root held in place on both sides: the real clips have no root trajectory)");
     }
-    println!("cond acc by 2 s window of the clip (does the label hold?):");
-    for r in &rows {
-        let w: Vec<String> = r
-            .cond_acc_windows
-            .iter()
-            .map(|a| format!("{:.0}", 100.0 * a))
-            .collect();
-        println!("  {}: {} %", r.sampling, w.join(" / "));
-    }
-    println!(
-        "frames tilted past 99 % of real training frames ({:.0}°) / lowest joint off their 0.5–99.5 % band widened 2.5 cm ({:.3}–{:.3} m) (held-out real):",
-        rows.first().map_or(f64::NAN, |r| r.tilt_max),
-        rows.first().map_or(f64::NAN, |r| r.floor_band[0]),
-        rows.first().map_or(f64::NAN, |r| r.floor_band[1])
+    // One line per row under a heading: each row's sampling, then what
+    // `line` makes of it.
+    let per_row = |heading: String, line: &dyn Fn(&GenRow) -> String| {
+        println!("{heading}");
+        for r in &rows {
+            println!("  {}: {}", r.sampling, line(r));
+        }
+    };
+    per_row(
+        "kinetic features furthest from held-out real (mean shift in real SDs, spread ×):".into(),
+        &|r| {
+            let g: Vec<String> = r
+                .fid_k_gaps
+                .iter()
+                .map(|g| format!("{} {:+.1} ×{:.2}", g.feature, g.z, g.spread))
+                .collect();
+            g.join(", ")
+        },
     );
-    for r in &rows {
-        println!(
-            "  {}: {:.1} % ({:.1} %) / {:.1} % ({:.1} %)",
-            r.sampling,
-            100.0 * r.tilt_out,
-            100.0 * r.tilt_out_real,
-            100.0 * r.floor_out,
-            100.0 * r.floor_out_real
-        );
-    }
+    per_row(
+        "cond acc per label value, generated (held-out real):".into(),
+        &|r| {
+            let g: Vec<String> = r
+                .cond_acc_by_label
+                .iter()
+                .map(|(v, a)| {
+                    let real = a.real.map_or("-".into(), |x| format!("{:.0}", 100.0 * x));
+                    format!("{v} {:.0} ({real})", 100.0 * a.generated)
+                })
+                .collect();
+            format!("{} %", g.join(", "))
+        },
+    );
+    per_row(
+        "cond acc by 2 s window of the clip (does the label hold?):".into(),
+        &|r| {
+            let w: Vec<String> = r
+                .cond_acc_windows
+                .iter()
+                .map(|a| format!("{:.0}", 100.0 * a))
+                .collect();
+            format!("{} %", w.join(" / "))
+        },
+    );
+    per_row(
+        format!(
+            "frames tilted past 99 % of real training frames ({:.0}°) / lowest joint off their 0.5–99.5 % band widened 2.5 cm ({:.3}–{:.3} m) (held-out real):",
+            rows.first().map_or(f64::NAN, |r| r.tilt_max),
+            rows.first().map_or(f64::NAN, |r| r.floor_band[0]),
+            rows.first().map_or(f64::NAN, |r| r.floor_band[1])
+        ),
+        &|r| {
+            format!(
+                "{:.1} % ({:.1} %) / {:.1} % ({:.1} %)",
+                100.0 * r.tilt_out,
+                100.0 * r.tilt_out_real,
+                100.0 * r.floor_out,
+                100.0 * r.floor_out_real
+            )
+        },
+    );
     Ok(())
 }

@@ -32,6 +32,11 @@ pub struct ExemplarsArgs {
     /// Default: `heads` when the model has class heads, else `hash`.
     #[arg(long, value_parser = ["heads", "hash"])]
     pub choose: Option<String>,
+    /// Spread each label value's spans over this kind's values (say
+    /// `content`: a style's exemplars then walk, run and wave as its real
+    /// takes do) instead of keeping the judge's likeliest spans only.
+    #[arg(long)]
+    pub cover: Option<String>,
 }
 
 /// The training side of each corpus folder (the trainer's split), as
@@ -106,6 +111,11 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
     }
     let judge = |t: &[u32]| m.classify(t, 1);
     let t0 = std::time::Instant::now();
+    if let Some(c) = &a.cover {
+        if !sequences.iter().any(|s| s.1.contains_key(c)) {
+            bail!("--cover {c}: no training sequence carries a {c} label");
+        }
+    }
     let ex = Exemplars::build(
         &sequences,
         &vocab,
@@ -113,6 +123,7 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
         a.seconds,
         a.per_label,
         by_heads.then_some(&judge as &choreo::lm::exemplars::Judge<'_>),
+        a.cover.as_deref(),
     )
     .context("judging candidate spans")?;
     if by_heads {

@@ -23,7 +23,9 @@
 //! quantisation is the same on both sides.
 
 use crate::features::lda::{window_features, Lda};
-use crate::keyframes::metrics::{fid, fid_range, geometric_features, kinetic_features};
+use crate::keyframes::metrics::{
+    feature_gaps, fid, fid_range, fid_same_size, geometric_features, kinetic_features,
+};
 use crate::lm::model::MotionModel;
 use crate::lm::Sampling;
 use crate::motion::io::{read_path, ReadOptions};
@@ -33,6 +35,7 @@ use crate::motion::skeleton::SMPL13_FROM_24;
 use crate::motion::{Labels, Motion, Skeleton};
 use crate::tokenize::vocab::Vocabulary;
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::path::Path;
 
 mod clip;
@@ -60,6 +63,17 @@ pub struct GenRow {
     pub fid_g: Option<f64>,
     pub fid_k_real: Option<f64>,
     pub fid_g_real: Option<f64>,
+    /// The real-vs-real yardstick at this row's clip count: held-out real
+    /// against as many real training segments as clips were generated
+    /// (median of 50 draws). FID is biased upward on small sets, so this
+    /// is the figure a generator as good as the real data would get here.
+    /// `None` where there are fewer training segments than clips.
+    pub fid_k_real_same_n: Option<f64>,
+    pub fid_g_real_same_n: Option<f64>,
+    /// The kinetic features the generated clips get most wrong against the
+    /// held-out real ones (mean shift and spread ratio in real standard
+    /// deviations; ranked by z² + (spread − 1)²): what drives FID_k.
+    pub fid_k_gaps: Vec<FeatureGap>,
     /// 5th and 95th percentiles of FID_k / FID_g over bootstrap resamples
     /// of the generated clips (the real side fixed): how far the figure
     /// moves with which clips happened to be drawn.
@@ -76,6 +90,10 @@ pub struct GenRow {
     /// window: whether the label holds as the clip goes on.
     pub cond_acc_windows: Vec<f64>,
     pub cond_acc_real: f64,
+    /// The conditioning accuracy per asked-for label value, generated and
+    /// held-out real (`None` where the real clips of a value have no
+    /// judge window): which values the model can make, and which it cannot.
+    pub cond_acc_by_label: BTreeMap<String, LabelAcc>,
     /// Frames whose root tilts further from the vertical than 99 % of the
     /// real training frames do (lying, bowing past the corpus), generated
     /// and held-out real.
@@ -97,6 +115,44 @@ pub struct GenRow {
     /// with the root held in place.
     pub root_in_place: bool,
 }
+
+/// One label value's conditioning accuracy ([`GenRow::cond_acc_by_label`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct LabelAcc {
+    pub generated: f64,
+    pub real: Option<f64>,
+}
+
+/// One kinetic feature's gap, generated vs held-out real.
+#[derive(Clone, Debug, Serialize)]
+pub struct FeatureGap {
+    /// SMPL-24 joint and measure: `horizontal speed²`, `vertical speed²`
+    /// or `acceleration` (the kinetic features' three per joint).
+    pub feature: String,
+    /// (generated mean − real mean) / real standard deviation.
+    pub z: f64,
+    /// Generated standard deviation / real standard deviation (see
+    /// [`crate::keyframes::metrics::Gap`] for a feature real clips hold
+    /// constant).
+    pub spread: f64,
+    /// The feature's own Fréchet term (what ranks it).
+    pub cost: f64,
+}
+
+/// The kinetic feature `k`'s name ([`kinetic_features`]'s order: three
+/// per SMPL-24 joint).
+fn kinetic_name(k: usize) -> String {
+    let names = crate::motion::Skeleton::smpl24().names;
+    let joint = names
+        .get(k / 3)
+        .cloned()
+        .unwrap_or_else(|| format!("joint {}", k / 3));
+    let what = ["horizontal speed²", "vertical speed²", "acceleration"][k % 3];
+    format!("{joint} {what}")
+}
+
+/// How many kinetic features a row names in `fid_k_gaps`.
+const GAPS_SHOWN: usize = 5;
 
 #[derive(Clone)]
 pub struct GenOptions {
@@ -307,27 +363,37 @@ pub fn eval_generate(
         }
     }
     let judge = Lda::fit(&x, &y, all_values.len(), 0.1);
-    // The judge's (hits, windows) on each clip's k-th window, k = 0, 1, …:
-    // the accuracy overall, and whether the label holds as the clip goes on.
-    let judge_by_window = |rows: &[(String, &ClipStats)]| -> Vec<(usize, usize)> {
-        let Some(j) = &judge else { return Vec::new() };
-        let mut by = Vec::new();
+    // The judge's verdicts, read once per window, tallied as (hits,
+    // windows) on each clip's k-th window, k = 0, 1, … (the accuracy
+    // overall, and whether the label holds as the clip goes on) and per
+    // label value.
+    type Tally = (Vec<(usize, usize)>, BTreeMap<String, (usize, usize)>);
+    let judged = |rows: &[(String, &ClipStats)]| -> Tally {
+        let (mut by_window, mut by_label) = (Vec::new(), BTreeMap::new());
+        let Some(j) = &judge else {
+            return (by_window, by_label);
+        };
         for (v, s) in rows {
+            let e: &mut (usize, usize) = by_label.entry(v.clone()).or_default();
             for (k, w) in s.lda_windows.iter().enumerate() {
-                if by.len() <= k {
-                    by.push((0, 0));
+                let hit = (all_values.get(j.predict(w)) == Some(v)) as usize;
+                if by_window.len() <= k {
+                    by_window.push((0, 0));
                 }
-                by[k].0 += (all_values.get(j.predict(w)) == Some(v)) as usize;
-                by[k].1 += 1;
+                by_window[k].0 += hit;
+                by_window[k].1 += 1;
+                e.0 += hit;
+                e.1 += 1;
             }
         }
-        by
+        (by_window, by_label)
     };
     let share = |(hit, n): (usize, usize)| hit as f64 / n.max(1) as f64;
     let overall =
         |by: &[(usize, usize)]| share(by.iter().fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1)));
     let real_refs: Vec<(String, &ClipStats)> = real.iter().map(|(v, s)| (v.clone(), s)).collect();
-    let cond_acc_real = overall(&judge_by_window(&real_refs));
+    let (real_by_window, real_by_label) = judged(&real_refs);
+    let cond_acc_real = overall(&real_by_window);
     let rk: Vec<Vec<f64>> = real.iter().map(|r| r.1.kinetic.clone()).collect();
     let rg: Vec<Vec<f64>> = real.iter().map(|r| r.1.geometric.clone()).collect();
     let tk: Vec<Vec<f64>> = real_train.iter().map(|r| r.1.kinetic.clone()).collect();
@@ -374,6 +440,14 @@ pub fn eval_generate(
             "exemplar: the model folder has no exemplars.json (make one with choreo exemplars)"
         );
     }
+    // The real yardsticks, the same for every row: every row generates
+    // per_label clips of each value.
+    let (fid_k_real, fid_g_real) = (fid(&rk, &tk), fid(&rg, &tg));
+    let n_gen = values.len() * o.per_label;
+    let (fid_k_real_same_n, fid_g_real_same_n) = (
+        fid_same_size(&rk, &tk, n_gen),
+        fid_same_size(&rg, &tg, n_gen),
+    );
     let runs: Vec<(&Sampling, bool, u32)> = o
         .samplings
         .iter()
@@ -450,7 +524,7 @@ pub fn eval_generate(
                 w.iter().filter(|&&s| s < 0.1 * real_speed).count() as f64 / w.len().max(1) as f64
             };
             let refs: Vec<(String, &ClipStats)> = gen.iter().map(|(v, s)| (v.clone(), s)).collect();
-            let by_window = judge_by_window(&refs);
+            let (by_window, by_label) = judged(&refs);
             let (tilt_out, floor_out) = out_share(&refs);
             rows.push(GenRow {
                 label_kind: kind.clone(),
@@ -473,8 +547,19 @@ pub fn eval_generate(
                 clips: gen.len(),
                 fid_k: fid(&rk, &gk),
                 fid_g: fid(&rg, &gg),
-                fid_k_real: fid(&rk, &tk),
-                fid_g_real: fid(&rg, &tg),
+                fid_k_real,
+                fid_g_real,
+                fid_k_real_same_n,
+                fid_g_real_same_n,
+                fid_k_gaps: feature_gaps(&rk, &gk, GAPS_SHOWN)
+                    .into_iter()
+                    .map(|g| FeatureGap {
+                        feature: kinetic_name(g.feature),
+                        z: g.z,
+                        spread: g.spread,
+                        cost: g.cost,
+                    })
+                    .collect(),
                 fid_k_range: fid_range(&rk, &gk),
                 fid_g_range: fid_range(&rg, &gg),
                 accel_ratio: mean(gen.iter().map(|r| r.1.accel)) / real_accel.max(1e-12),
@@ -486,6 +571,17 @@ pub fn eval_generate(
                 cond_acc: overall(&by_window),
                 cond_acc_windows: by_window.iter().copied().map(share).collect(),
                 cond_acc_real,
+                cond_acc_by_label: by_label
+                    .into_iter()
+                    .map(|(v, hn)| {
+                        let real = real_by_label.get(&v).filter(|r| r.1 > 0).map(|&r| share(r));
+                        let acc = LabelAcc {
+                            generated: share(hn),
+                            real,
+                        };
+                        (v, acc)
+                    })
+                    .collect(),
                 tilt_out,
                 tilt_out_real,
                 floor_out,

@@ -18,10 +18,12 @@
 //!   dimension standardised by the real set's mean and standard deviation.
 //! - [`beat_alignment`]: both directions, see its docs.
 
-use crate::features::pca::{jacobi_eigen, matmul};
 use crate::features::reflect_index;
 use crate::motion::rotation::{cross, dot, norm, sub, Vec3};
 use crate::motion::{Motion, Skeleton};
+
+mod fid;
+pub use fid::*;
 
 /// Eq. 2.8: mean over frames and joints of |x − x̂|², in m².
 pub fn mse(a: &[Vec3], b: &[Vec3]) -> f64 {
@@ -280,85 +282,6 @@ pub fn geometric_features(p: &[Vec3], joints: usize) -> Vec<f64> {
     sum.iter().map(|s| s / d).collect()
 }
 
-/// Fréchet distance between Gaussians fitted to two sets of feature vectors
-/// (rows), every dimension standardised by the real set's mean and
-/// standard deviation (dimensions with zero spread in the real set are
-/// left unscaled).
-pub fn fid(real: &[Vec<f64>], fake: &[Vec<f64>]) -> Option<f64> {
-    let d = real.first()?.len();
-    if real.len() < 2 || fake.len() < 2 || fake.iter().chain(real).any(|r| r.len() != d) {
-        return None;
-    }
-    let mean = |x: &[Vec<f64>]| -> Vec<f64> {
-        (0..d)
-            .map(|k| x.iter().map(|r| r[k]).sum::<f64>() / x.len() as f64)
-            .collect()
-    };
-    let mu_r = mean(real);
-    let sd: Vec<f64> = (0..d)
-        .map(|k| {
-            let v = real.iter().map(|r| (r[k] - mu_r[k]).powi(2)).sum::<f64>()
-                / (real.len() - 1) as f64;
-            if v > 1e-24 {
-                v.sqrt()
-            } else {
-                1.0
-            }
-        })
-        .collect();
-    let norm_set = |x: &[Vec<f64>]| -> Vec<Vec<f64>> {
-        x.iter()
-            .map(|r| (0..d).map(|k| (r[k] - mu_r[k]) / sd[k]).collect())
-            .collect()
-    };
-    let (a, b) = (norm_set(real), norm_set(fake));
-    let (ma, mb) = (mean(&a), mean(&b));
-    let cov = |x: &[Vec<f64>], m: &[f64]| -> Vec<f64> {
-        let mut c = vec![0.0; d * d];
-        for r in x {
-            for i in 0..d {
-                let di = r[i] - m[i];
-                for k in i..d {
-                    c[i * d + k] += di * (r[k] - m[k]);
-                }
-            }
-        }
-        for i in 0..d {
-            for k in i..d {
-                let v = c[i * d + k] / (x.len() - 1) as f64;
-                c[i * d + k] = v;
-                c[k * d + i] = v;
-            }
-        }
-        c
-    };
-    let (ca, cb) = (cov(&a, &ma), cov(&b, &mb));
-    // Tr √(Ca Cb) = Σ √λ(√Ca Cb √Ca).
-    let (va, ea) = jacobi_eigen(ca.clone(), d);
-    let mut sq = vec![0.0; d * d];
-    for i in 0..d {
-        for k in 0..d {
-            sq[i * d + k] = (0..d)
-                .map(|m| ea[i * d + m] * va[m].max(0.0).sqrt() * ea[k * d + m])
-                .sum();
-        }
-    }
-    let mut mmat = matmul(&matmul(&sq, &cb, d), &sq, d);
-    for i in 0..d {
-        for k in i + 1..d {
-            let s = 0.5 * (mmat[i * d + k] + mmat[k * d + i]);
-            mmat[i * d + k] = s;
-            mmat[k * d + i] = s;
-        }
-    }
-    let (vm, _) = jacobi_eigen(mmat, d);
-    let tr_sqrt: f64 = vm.iter().map(|v| v.max(0.0).sqrt()).sum();
-    let tr_a: f64 = (0..d).map(|i| ca[i * d + i]).sum();
-    let tr_b: f64 = (0..d).map(|i| cb[i * d + i]).sum();
-    let dm: f64 = ma.iter().zip(&mb).map(|(x, y)| (x - y).powi(2)).sum();
-    Some((dm + tr_a + tr_b - 2.0 * tr_sqrt).max(0.0))
-}
-
 /// Kinematic beats: local minima of the mean joint speed after a Gaussian
 /// smoothing of σ = 5 frames (as AIST++'s evaluation finds them).
 pub fn motion_beats(p: &[Vec3], joints: usize) -> Vec<usize> {
@@ -424,35 +347,6 @@ pub fn beat_alignment(music: &[usize], motion: &[usize], sigma: f64) -> Option<(
     Some((score(music, motion), score(motion, music)))
 }
 
-/// Bootstrap resamples behind [`fid_range`].
-pub const FID_BOOTSTRAP: usize = 200;
-
-/// The 5th and 95th percentiles of [`fid`] between `real` and resamples
-/// (with replacement, the same count) of `gen`: how far the figure moves
-/// with which generated samples happened to be drawn; a fixed seed, so a rerun
-/// on the same clips prints the same range.
-pub fn fid_range(real: &[Vec<f64>], gen: &[Vec<f64>]) -> Option<[f64; 2]> {
-    use rand::{Rng, SeedableRng};
-    if gen.len() < 2 {
-        return None;
-    }
-    let mut rng = rand::rngs::StdRng::seed_from_u64(0x0F1D);
-    let mut v: Vec<f64> = (0..FID_BOOTSTRAP)
-        .filter_map(|_| {
-            let pick: Vec<Vec<f64>> = (0..gen.len())
-                .map(|_| gen[rng.gen_range(0..gen.len())].clone())
-                .collect();
-            fid(real, &pick).filter(|x| x.is_finite())
-        })
-        .collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
-    Some([at(0.05), at(0.95)])
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -481,6 +375,74 @@ mod tests {
         let f2 = fid(&a, &more).unwrap();
         assert!(f1 > 0.1 && f2 > 3.0 * f1, "{f1} {f2}");
         assert!(fid(&a[..1], &a).is_none());
+    }
+
+    #[test]
+    fn same_size_yardstick_shows_the_small_set_bias_and_gaps_name_what_moved() {
+        use rand::{Rng, SeedableRng};
+        // Two sets from one 6-d distribution: a small one scores worse
+        // against the reference than a large one, though both are real.
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let mut draw = |n: usize| -> Vec<Vec<f64>> {
+            (0..n)
+                .map(|_| (0..6).map(|_| rng.gen::<f64>() * 2.0 - 1.0).collect())
+                .collect()
+        };
+        let (real, pool) = (draw(60), draw(600));
+        let whole = fid(&real, &pool).unwrap();
+        let small = fid_same_size(&real, &pool, 20).unwrap();
+        assert!(small > 1.5 * whole, "{small} vs {whole}");
+        // Too few rows in the pool: no same-size figure.
+        assert!(fid_same_size(&real, &pool[..10], 20).is_none());
+        assert!(fid_same_size(&real, &pool, 1).is_none());
+        // Feature 4 shifted by one real spread: named first, z ≈ +1.
+        let sd = {
+            let m = real.iter().map(|r| r[4]).sum::<f64>() / 60.0;
+            (real.iter().map(|r| (r[4] - m).powi(2)).sum::<f64>() / 59.0).sqrt()
+        };
+        let moved: Vec<Vec<f64>> = real
+            .iter()
+            .map(|r| {
+                let mut r = r.clone();
+                r[4] += sd;
+                r
+            })
+            .collect();
+        let gaps = feature_gaps(&real, &moved, 2);
+        assert_eq!(gaps.len(), 2);
+        assert_eq!(gaps[0].feature, 4);
+        assert!((gaps[0].z - 1.0).abs() < 1e-9, "{gaps:?}");
+        assert!((gaps[0].spread - 1.0).abs() < 1e-9, "{gaps:?}");
+        // Feature 2 squeezed to half its spread around its mean: next.
+        let m2 = real.iter().map(|r| r[2]).sum::<f64>() / 60.0;
+        let squeezed: Vec<Vec<f64>> = moved
+            .iter()
+            .map(|r| {
+                let mut r = r.clone();
+                r[2] = m2 + 0.5 * (r[2] - m2);
+                r
+            })
+            .collect();
+        let gaps = feature_gaps(&real, &squeezed, 3);
+        assert_eq!((gaps[0].feature, gaps[1].feature), (4, 2), "{gaps:?}");
+        assert!(gaps[1].z.abs() < 1e-9 && (gaps[1].spread - 0.5).abs() < 1e-9);
+        // A feature constant in both sets (a root held in place) is no
+        // gap; constant in the real set only, its whole spread is.
+        let mut flat_real = real.clone();
+        let mut flat_gen = real.clone();
+        for r in flat_real.iter_mut().chain(flat_gen.iter_mut()) {
+            r[0] = 0.0;
+        }
+        let none = feature_gaps(&flat_real, &flat_gen, 6);
+        let f0 = none.iter().find(|g| g.feature == 0).unwrap();
+        assert_eq!((f0.z, f0.spread, f0.cost), (0.0, 1.0, 0.0));
+        flat_gen[0][0] = 0.3;
+        flat_gen[1][0] = -0.3;
+        let g0 = feature_gaps(&flat_real, &flat_gen, 1)[0];
+        assert_eq!(g0.feature, 0, "{g0:?}");
+        let sd = (2.0 * 0.09 / 59.0f64).sqrt();
+        assert!((g0.spread - sd).abs() < 1e-12 && (g0.cost - sd * sd).abs() < 1e-12);
+        assert!((gaps[1].cost - 0.25).abs() < 1e-9);
     }
 
     #[test]

@@ -74,7 +74,8 @@ pub struct Exemplars {
     /// The model's frame rate and tokens per frame (checked at load).
     pub fps: f64,
     pub frame_len: usize,
-    /// Seconds of each span.
+    /// Seconds of each span; a label value none of whose takes is that
+    /// long has its longest takes whole instead (each item's `frames`).
     pub seconds: f64,
     pub items: Vec<Exemplar>,
     /// Decoded tokens, one per item.
@@ -207,6 +208,20 @@ impl Exemplars {
     /// spans the judge finds likeliest to carry it: the clearest examples
     /// of the value, which is what a generation continues. A kind the
     /// judge does not classify falls back to the hash order.
+    ///
+    /// With `cover` a label kind (say `content`), the spans of each other
+    /// kind's value are spread over that kind's values: the best span of
+    /// each content first (contents in the order of their best span), then
+    /// each content's second best, and so on, until `per_label`. A style's
+    /// exemplars then walk, run, wave and raise their hands as its real
+    /// takes do, instead of all being the few spans the judge likes best
+    /// (which on Bandai were walks and waves only). Sequences without a
+    /// `cover` label form one group; the `cover` kind's own values are
+    /// chosen as without it.
+    ///
+    /// A value none of whose sequences is as long as a span gets its
+    /// longest sequences whole instead (see [`MIN_SHORT_FRACTION`]).
+    #[allow(clippy::too_many_arguments)]
     pub fn build(
         sequences: &[(String, Labels, Vec<u32>)],
         vocab: &Vocabulary,
@@ -214,6 +229,7 @@ impl Exemplars {
         seconds: f64,
         per_label: usize,
         judge: Option<&Judge<'_>>,
+        cover: Option<&str>,
     ) -> Result<Exemplars, LmError> {
         let fl = vocab.frame_len();
         let len = ((seconds * vocab.fps).round() as usize).max(1);
@@ -291,20 +307,26 @@ impl Exemplars {
                 by_pair.entry(pair.clone()).or_default().push(c);
             }
         }
-        let mut chosen: BTreeMap<(usize, usize), Vec<Chosen>> = BTreeMap::new();
+        // Keyed by (sequence, start, frames).
+        let mut chosen: BTreeMap<(usize, usize, usize), Vec<Chosen>> = BTreeMap::new();
+        // The values some span-long sequence carries.
+        let covered: BTreeSet<(String, String)> = by_pair.keys().cloned().collect();
         for (pair, mut cands) in by_pair {
             cands.sort_by(|a, b| {
                 let pa = a.3.get(&pair).copied().unwrap_or(0.0);
                 let pb = b.3.get(&pair).copied().unwrap_or(0.0);
                 pb.total_cmp(&pa).then(a.0.cmp(&b.0)).then(a.2.cmp(&b.2))
             });
+            if let Some(by) = cover.filter(|by| *by != pair.0) {
+                cands = spread_over(cands, |c| sequences[c.1].1.get(by));
+            }
             let mut used = BTreeSet::new();
             for c in cands {
                 if used.len() == per_label {
                     break;
                 }
                 if used.insert(c.1) {
-                    chosen.entry((c.1, c.2)).or_default().push(Chosen {
+                    chosen.entry((c.1, c.2, len)).or_default().push(Chosen {
                         kind: pair.0.clone(),
                         value: pair.1.clone(),
                         p: c.3.get(&pair).copied(),
@@ -312,11 +334,43 @@ impl Exemplars {
                 }
             }
         }
+        // A value none of whose takes is as long as a span (Bandai's runs,
+        // dashes and raised hands last 2–5 s) still gets exemplars: its
+        // longest takes whole, if at least [`MIN_SHORT_FRACTION`] of a span,
+        // so a request for it does not start from nothing.
+        let min_short = ((len as f64 * MIN_SHORT_FRACTION).ceil() as usize).max(1);
+        let mut short: BTreeMap<(String, String), Vec<usize>> = BTreeMap::new();
+        for (i, ps) in pairs.iter().enumerate() {
+            let n = sequences[i].2.len() / fl;
+            if n >= len || n < min_short {
+                continue;
+            }
+            for pair in ps.iter().filter(|p| !covered.contains(*p)) {
+                short.entry(pair.clone()).or_default().push(i);
+            }
+        }
+        for (pair, mut seqs) in short {
+            // Longest first, then the hash order.
+            seqs.sort_by_key(|&i| {
+                (
+                    std::cmp::Reverse(sequences[i].2.len()),
+                    crate::data::split_hash(&sequences[i].0),
+                )
+            });
+            for i in seqs.into_iter().take(per_label) {
+                let n = sequences[i].2.len() / fl;
+                chosen.entry((i, 0, n)).or_default().push(Chosen {
+                    kind: pair.0.clone(),
+                    value: pair.1.clone(),
+                    p: None,
+                });
+            }
+        }
         let mut items = Vec::new();
         let mut decoded = Vec::new();
-        for ((i, st), chosen_for) in chosen {
+        for ((i, st, frames), chosen_for) in chosen {
             let (name, labels, tokens) = &sequences[i];
-            let span = tokens[st * fl..(st + len) * fl].to_vec();
+            let span = tokens[st * fl..(st + frames) * fl].to_vec();
             // The file name only: the path it was read from is this
             // machine's, and answers repeat it.
             let source = std::path::Path::new(name)
@@ -326,7 +380,7 @@ impl Exemplars {
                 source,
                 labels: labels.clone(),
                 start_frame: st,
-                frames: len,
+                frames,
                 tokens: Exemplar::encode(&span),
                 chosen_for,
             });
@@ -341,6 +395,10 @@ impl Exemplars {
         })
     }
 }
+
+/// The shortest whole take (a fraction of the span length) that may stand
+/// in for a label value with no take as long as a span.
+pub const MIN_SHORT_FRACTION: f64 = 0.3;
 
 /// Candidate spans per sequence when a judge chooses.
 pub const CANDIDATES: usize = 4;
@@ -366,6 +424,32 @@ fn splitmix(mut x: u64) -> u64 {
     x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     x ^ (x >> 31)
+}
+
+/// `items` (best first) reordered so that groups take turns: the best of
+/// each group (groups in the order of their best), then each group's
+/// second best, and so on. Within a group the order is kept.
+fn spread_over<T, K: Ord>(items: Vec<T>, group: impl Fn(&T) -> K) -> Vec<T> {
+    let mut groups: Vec<(K, Vec<T>)> = Vec::new();
+    for it in items {
+        let g = group(&it);
+        match groups.iter_mut().find(|(k, _)| *k == g) {
+            Some((_, v)) => v.push(it),
+            None => groups.push((g, vec![it])),
+        }
+    }
+    let mut queues: Vec<std::vec::IntoIter<T>> =
+        groups.into_iter().map(|(_, v)| v.into_iter()).collect();
+    let mut out = Vec::new();
+    loop {
+        let before = out.len();
+        for q in &mut queues {
+            out.extend(q.next());
+        }
+        if out.len() == before {
+            return out;
+        }
+    }
 }
 
 #[cfg(test)]

@@ -355,6 +355,13 @@ impl Generator {
         sampling: Sampling,
     ) -> Result<Generator, LmError> {
         sampling.validate()?;
+        if sampling.posture > 0.0 {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.posture",
+                "the flat GPT cannot pull toward label postures (the frame model can; 0 = off)",
+            ));
+        }
         let m = &session.manifest;
         let cfg = &m.config;
         let prefix = request_prefix(&m.vocabulary, &cfg.cond_kinds, labels)?;

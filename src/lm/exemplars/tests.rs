@@ -40,7 +40,7 @@ fn build_pick_and_round_trip() {
         seq("short", "sad", "run", 10, &v), // under the span: never chosen
     ];
     let kinds = vec!["style".to_string(), "content".to_string()];
-    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 1, None).unwrap();
+    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 1, None, None).unwrap();
     let len = (2.0 * v.fps).round() as usize;
     assert!(ex
         .items
@@ -80,7 +80,7 @@ fn build_pick_and_round_trip() {
         assert_eq!(ex.pick(&happy, s).unwrap().0.labels["style"], "happy");
     }
     // With two per value, both happy sequences are kept and seeds reach both.
-    let two = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, None).unwrap();
+    let two = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, None, None).unwrap();
     let picked: BTreeSet<&str> = (0..50)
         .map(|s| two.pick(&happy, s).unwrap().0.source.as_str())
         .collect();
@@ -147,7 +147,7 @@ fn a_judge_keeps_the_clearest_spans_and_pick_prefers_them() {
             ),
         ])
     };
-    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge)).unwrap();
+    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge), None).unwrap();
     let len = (2.0 * v.fps).round() as usize;
     let starts: Vec<usize> = (1..=CANDIDATES)
         .map(|c| (300 - len) * c / (CANDIDATES + 1))
@@ -206,5 +206,105 @@ fn a_judge_keeps_the_clearest_spans_and_pick_prefers_them() {
     let bad = |_: &[u32]| -> Result<crate::lm::model::ClassTable, LmError> {
         Err(LmError::invalid("model", "classes", "no heads"))
     };
-    assert!(Exemplars::build(&seqs, &v, &kinds, 2.0, 1, Some(&bad)).is_err());
+    assert!(Exemplars::build(&seqs, &v, &kinds, 2.0, 1, Some(&bad), None).is_err());
+}
+
+#[test]
+fn covering_a_kind_spreads_a_values_spans_over_it() {
+    let v = vocab();
+    let fl = v.frame_len();
+    // Three happy takes; a judge that likes the walks best (frame tokens
+    // start at each take's offset, and happiness grows with the token).
+    let take = |name: &str, content: &str, offset: u32| {
+        let mut s = seq(name, "happy", content, 300, &v);
+        s.2 = (0..300 * fl)
+            .map(|i| (i / fl) as u32 / 2 + offset)
+            .collect();
+        s
+    };
+    let seqs = vec![
+        take("walk-a", "walk", 120),
+        take("walk-b", "walk", 110),
+        take("run", "run", 0),
+    ];
+    let judge = |t: &[u32]| -> Result<crate::lm::model::ClassTable, LmError> {
+        let p = t[0] as f64 / 400.0;
+        Ok(vec![(
+            "style".to_string(),
+            vec![("happy".into(), p), ("sad".into(), 1.0 - p)],
+        )])
+    };
+    let kinds = vec!["style".to_string()];
+    let sources = |ex: &Exemplars| -> BTreeSet<String> {
+        ex.items.iter().map(|e| e.source.clone()).collect()
+    };
+    let plain = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge), None).unwrap();
+    assert_eq!(
+        sources(&plain),
+        ["walk-a", "walk-b"].map(String::from).into()
+    );
+    let covered =
+        Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge), Some("content")).unwrap();
+    // The best walk, then the best run: the run take gets its turn.
+    assert_eq!(
+        sources(&covered),
+        ["walk-a", "run"].map(String::from).into()
+    );
+    // Three per value: every take, each once.
+    let all = Exemplars::build(&seqs, &v, &kinds, 2.0, 3, Some(&judge), Some("content")).unwrap();
+    assert_eq!(all.len(), 3);
+    // Turn-taking keeps each group's order.
+    assert_eq!(
+        spread_over(
+            vec![(1, 'a'), (2, 'a'), (3, 'b'), (4, 'a'), (5, 'c')],
+            |x| x.1
+        ),
+        vec![(1, 'a'), (3, 'b'), (5, 'c'), (2, 'a'), (4, 'a')]
+    );
+}
+
+#[test]
+fn a_value_with_only_short_takes_gets_them_whole() {
+    let v = vocab();
+    let fl = v.frame_len();
+    let len = (2.0 * v.fps).round() as usize; // 40 frames
+    let seqs = vec![
+        seq("long-walk", "happy", "walk", 300, &v),
+        seq("run-25", "sad", "run", 25, &v),
+        seq("run-30", "sad", "run", 30, &v),
+        seq("too-short", "sad", "run", 5, &v), // under 0.3 of a span
+    ];
+    let kinds = vec!["style".to_string(), "content".to_string()];
+    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, None, None).unwrap();
+    let mut sad = Labels::new();
+    sad.insert("style".into(), "sad".into());
+    let picked: BTreeSet<(String, usize)> = (0..40)
+        .map(|s| {
+            let (e, t) = ex.pick(&sad, s).unwrap();
+            assert_eq!(t.len(), e.frames * fl);
+            assert_eq!((e.start_frame, t[0]), (0, 0));
+            (e.source.clone(), e.frames)
+        })
+        .collect();
+    assert_eq!(
+        picked,
+        [("run-25".to_string(), 25), ("run-30".to_string(), 30)].into()
+    );
+    // The long take keeps its span of the asked length, and the short
+    // ones are stored once though chosen for style and content both.
+    assert!(ex
+        .items
+        .iter()
+        .any(|e| e.source == "long-walk" && e.frames == len));
+    assert_eq!(ex.items.iter().filter(|e| e.source == "run-30").count(), 1);
+    let run30 = ex.items.iter().find(|e| e.source == "run-30").unwrap();
+    assert_eq!(run30.chosen_for.len(), 2);
+    assert!(ex.items.iter().all(|e| e.source != "too-short"));
+    // Saved and loaded with their own lengths.
+    let dir = std::env::temp_dir().join(format!("choreo-exemplars-s-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    ex.save(&dir).unwrap();
+    let back = Exemplars::load(&dir, &v).unwrap().unwrap();
+    assert_eq!(back.pick(&sad, 3).unwrap().1, ex.pick(&sad, 3).unwrap().1);
+    std::fs::remove_dir_all(&dir).unwrap();
 }
