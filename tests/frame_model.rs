@@ -509,7 +509,7 @@ fn bad_frame_manifests_are_clear_errors() {
     let other = "genre".to_string();
     assert_eq!(m3.default_max_jump([&kinds[0]]), 24);
     assert_eq!(m3.default_max_jump([&other, &kinds[0]]), 24);
-    let recommended = choreo::lm::generate::RECOMMENDED.max_jump;
+    let recommended = choreo::lm::sampling::RECOMMENDED.max_jump;
     assert_eq!(m3.default_max_jump([&other]), recommended);
     assert_eq!(m3.default_max_jump(&Vec::<String>::new()), recommended);
     // Per-kind top_p and posture defaults: an unknown kind, a top_p or a
@@ -624,6 +624,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         label_kind: "genre".into(),
         per_label: 1,
         seconds: 2.0,
+        held_out_lengths: false,
         samplings: vec![Sampling::default(), Sampling::recommended(1)],
         val_fraction: 0.1,
         exemplars: None,
@@ -701,6 +702,45 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         assert_eq!(p[0].cond_acc, p[1].cond_acc);
         assert!((p[0].jerk_ratio - p[1].jerk_ratio).abs() < 1e-9 * p[0].jerk_ratio.max(1.0));
     }
+    // Held-out lengths: clip k of a label lasts as long as the label's
+    // k-th held-out segment (whole takes shorter than --seconds, pieces of
+    // --seconds from longer ones), so the generated mean is theirs.
+    let (val, _) =
+        choreo::eval::generate::read_split(model.vocabulary(), &dir, 0.1, &mut |_| {}).unwrap();
+    let seconds = 12.0;
+    let cap = (seconds * 20.0) as usize;
+    let mut first: BTreeMap<String, usize> = BTreeMap::new();
+    for c in &val {
+        let n = c.tokens.len() / model.vocabulary().frame_len();
+        if let Some(g) = c.labels.get("genre") {
+            first
+                .entry(g.clone())
+                .or_insert(if n < cap { n } else { cap });
+        }
+    }
+    let want = first.values().sum::<usize>() as f64 / first.len() as f64 / 20.0;
+    let matched = eval_generate(
+        &model,
+        &dir,
+        &GenOptions {
+            seconds,
+            held_out_lengths: true,
+            samplings: vec![Sampling::default()],
+            root_from_feet: vec![false],
+            ..o.clone()
+        },
+        &mut |_| {},
+    )
+    .unwrap();
+    assert!(
+        (matched[0].seconds_generated - want).abs() < 1e-9,
+        "{} vs {want}",
+        matched[0].seconds_generated
+    );
+    assert!(
+        first.values().any(|&n| n < cap),
+        "no held-out clip shorter than {seconds} s"
+    );
     // Style exemplars from the training side only: none of their sources
     // is a held-out clip; rows with and without them, side by side.
     let (val, train) =
@@ -716,7 +756,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         1.0,
         1,
         None,
-        None,
+        choreo::lm::exemplars::SpanChoice::default(),
     )
     .unwrap();
     assert!(!ex.is_empty());
@@ -730,6 +770,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         label_kind: "genre".into(),
         per_label: 1,
         seconds: 2.0,
+        held_out_lengths: false,
         samplings: vec![Sampling::recommended(1)],
         val_fraction: 0.1,
         exemplars: Some(ex),

@@ -26,8 +26,16 @@ pub enum EvalCmd {
         labels: String,
         #[arg(long, default_value_t = 3)]
         per_label: usize,
+        /// Generated clips' length, and the longest real segment (longer
+        /// held-out takes are cut into pieces of this length).
         #[arg(long, default_value_t = 10.0)]
         seconds: f64,
+        /// `fixed`: every generated clip lasts --seconds; `held-out`: the
+        /// k-th clip of a label lasts as long as that label's k-th held-out
+        /// segment (cycled), so both sides hold the same mix of lengths
+        /// (a short take's features average over fewer frames).
+        #[arg(long, default_value = "fixed")]
+        lengths: String,
         /// Sampling settings, T:K:P[:G[:N[:J[:W]]]] (temperature:top_k:top_p
         /// [:guidance[:keep_near[:max_jump[:posture]]]]) or greedy; J `auto`
         /// takes the model's default for the label kind, as a request naming
@@ -191,6 +199,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             labels,
             per_label,
             seconds,
+            lengths,
             sampling,
             exemplar,
             candidates,
@@ -202,7 +211,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             &model,
             &data,
             &labels,
-            (per_label, seconds),
+            (per_label, seconds, &lengths),
             (&sampling, seed),
             (&exemplar, &candidates, rank_every),
             &root,

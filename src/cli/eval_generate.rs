@@ -57,7 +57,7 @@ pub fn run(
     model: &Path,
     data: &Path,
     labels: &str,
-    (per_label, seconds): (usize, f64),
+    (per_label, seconds, lengths): (usize, f64, &str),
     (samplings, seed): (&[String], u64),
     (exemplar, candidates, rank_every): (&str, &[u32], usize),
     root: &str,
@@ -69,6 +69,11 @@ pub fn run(
     if !(seconds > 0.0 && seconds <= 120.0) {
         bail!("--seconds: {seconds} (want 0 < s ≤ 120)");
     }
+    let held_out_lengths = match lengths {
+        "fixed" => false,
+        "held-out" => true,
+        o => bail!("--lengths: '{o}' is not fixed or held-out"),
+    };
     let root_from_feet = match root {
         "model" => vec![false],
         "feet" => vec![true],
@@ -101,6 +106,7 @@ pub fn run(
         label_kind: labels.to_string(),
         per_label,
         seconds,
+        held_out_lengths,
         samplings,
         val_fraction: 0.1,
         exemplar_modes: match (&exemplars, exemplar) {
@@ -124,9 +130,16 @@ pub fn run(
     let f = |x: Option<f64>| x.map_or("-".into(), |v| format!("{v:.1}"));
     let range = |x: Option<[f64; 2]>| x.map_or(String::new(), |[a, b]| format!(" [{a:.1}–{b:.1}]"));
     println!(
-        "{} model, {} clips of {seconds} s per {labels}, held-out clips of {}",
+        "{} model, {} clips of {} per {labels}, held-out clips of {}",
         m.kind(),
         per_label,
+        match rows.first() {
+            Some(r) if held_out_lengths => format!(
+                "the held-out segments' lengths (mean {:.1} s, at most {seconds} s)",
+                r.seconds_generated
+            ),
+            _ => format!("{seconds} s"),
+        },
         PathBuf::from(data).display()
     );
     println!(

@@ -3,7 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 use choreo::eval::generate::read_split;
-use choreo::lm::exemplars::Exemplars;
+use choreo::lm::exemplars::{Exemplars, SpanChoice};
 use choreo::lm::model::MotionModel;
 use std::path::PathBuf;
 
@@ -37,6 +37,12 @@ pub struct ExemplarsArgs {
     /// takes do) instead of keeping the judge's likeliest spans only.
     #[arg(long)]
     pub cover: Option<String>,
+    /// Take each span from the start of its take (its first --seconds)
+    /// instead of from inside it: the generation then goes on to what the
+    /// take does next (on Bandai, whose runs and raised hands last 2–3 s,
+    /// a span from inside such a take ends where it stops).
+    #[arg(long)]
+    pub from_start: bool,
 }
 
 /// The training side of each corpus folder (the trainer's split), as
@@ -123,7 +129,10 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
         a.seconds,
         a.per_label,
         by_heads.then_some(&judge as &choreo::lm::exemplars::Judge<'_>),
-        a.cover.as_deref(),
+        SpanChoice {
+            cover: a.cover.as_deref(),
+            from_start: a.from_start,
+        },
     )
     .context("judging candidate spans")?;
     if by_heads {

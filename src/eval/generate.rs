@@ -111,6 +111,8 @@ pub struct GenRow {
     pub tilt_max: f64,
     pub floor_band: [f64; 2],
     pub seconds_per_clip: f64,
+    /// The generated clips' mean length (seconds of motion).
+    pub seconds_generated: f64,
     /// The real clips have no root trajectory, so both sides were measured
     /// with the root held in place.
     pub root_in_place: bool,
@@ -159,6 +161,9 @@ pub struct GenOptions {
     pub label_kind: String,
     pub per_label: usize,
     pub seconds: f64,
+    /// Clip k of a label lasts as long as the label's k-th held-out
+    /// segment (cycled) instead of `seconds`.
+    pub held_out_lengths: bool,
     pub samplings: Vec<Sampling>,
     pub val_fraction: f64,
     /// The model's style exemplars, and whether each row seeds with one
@@ -465,6 +470,16 @@ pub fn eval_generate(
             let mut labels = Labels::new();
             labels.insert(kind.clone(), v.clone());
             for i in 0..o.per_label {
+                let seg = if o.held_out_lengths {
+                    let of_v: Vec<usize> = val_segs
+                        .iter()
+                        .filter(|s| &s.0 == v)
+                        .map(|s| s.1.len() / fl)
+                        .collect();
+                    of_v[i % of_v.len()]
+                } else {
+                    seg
+                };
                 let mut s = sampling.clone();
                 s.seed = sampling.seed.wrapping_add(i as u64);
                 let free = vec![None; fl];
@@ -589,6 +604,7 @@ pub fn eval_generate(
                 tilt_max,
                 floor_band: [low_lo, low_hi],
                 seconds_per_clip: secs,
+                seconds_generated: mean(made.iter().map(|m| (m.1.len() / fl) as f64)) / vocab.fps,
                 root_in_place: in_place,
             });
         }

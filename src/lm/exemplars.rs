@@ -221,6 +221,14 @@ impl Exemplars {
     ///
     /// A value none of whose sequences is as long as a span gets its
     /// longest sequences whole instead (see [`MIN_SHORT_FRACTION`]).
+    ///
+    /// `choice` says how each value's spans spread over another kind
+    /// (`cover`, above) and whether they are the openings of their takes
+    /// (`from_start`: every take offers its first `seconds` only, judged or
+    /// in hash order as above). A generation continues what its exemplar
+    /// ends on: a span from inside a short take (Bandai's runs last 2.8 s)
+    /// ends where the take stops, so the continuation stands; an opening
+    /// ends where the take's content is still to come.
     #[allow(clippy::too_many_arguments)]
     pub fn build(
         sequences: &[(String, Labels, Vec<u32>)],
@@ -229,8 +237,9 @@ impl Exemplars {
         seconds: f64,
         per_label: usize,
         judge: Option<&Judge<'_>>,
-        cover: Option<&str>,
+        choice: SpanChoice<'_>,
     ) -> Result<Exemplars, LmError> {
+        let cover = choice.cover;
         let fl = vocab.frame_len();
         let len = ((seconds * vocab.fps).round() as usize).max(1);
         let mut order: Vec<usize> = (0..sequences.len())
@@ -252,6 +261,9 @@ impl Exemplars {
             })
             .collect();
         let candidates = |n: usize| -> Vec<usize> {
+            if choice.from_start {
+                return vec![0];
+            }
             match judge {
                 None => vec![(n - len) / 3],
                 Some(_) => {
@@ -394,6 +406,15 @@ impl Exemplars {
             decoded,
         })
     }
+}
+
+/// How [`Exemplars::build`] places spans: spread over the values of the
+/// kind `cover` names, and taken from the takes' openings (`from_start`)
+/// instead of from inside them.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SpanChoice<'a> {
+    pub cover: Option<&'a str>,
+    pub from_start: bool,
 }
 
 /// The shortest whole take (a fraction of the span length) that may stand

@@ -7,7 +7,7 @@
 use super::engine::Cache;
 use super::frame::{local_context, FrameConfig};
 use super::frame_runtime::{FrameSession, Step};
-use super::generate::Sampling;
+use super::sampling::Sampling;
 use super::LmError;
 use crate::motion::Labels;
 use rand::rngs::StdRng;

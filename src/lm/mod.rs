@@ -31,11 +31,13 @@ pub mod manifest;
 pub mod model;
 pub mod posture;
 pub mod runtime;
+pub mod sampling;
 pub mod steer;
 
-pub use generate::{classify, forced_frames, prompt_slots, FrameDecoder, Generator, Sampling};
+pub use generate::{classify, forced_frames, prompt_slots, FrameDecoder, Generator};
 pub use manifest::Manifest;
 pub use runtime::{Kv, LmSession};
+pub use sampling::Sampling;
 
 use serde::{Deserialize, Serialize};
 

@@ -8,9 +8,10 @@ use super::engine::Engine;
 use super::frame::FRAME_KIND;
 use super::frame_runtime::{FrameGenerator, FrameSession};
 use super::generate::{
-    add_softmax, class_table, classify as flat_classify, classify_starts, Generator, Sampling,
+    add_softmax, class_table, classify as flat_classify, classify_starts, Generator,
 };
 use super::manifest::read_manifest;
+use super::sampling::Sampling;
 use super::{LmError, LmSession};
 use crate::motion::Labels;
 use crate::tokenize::vocab::Vocabulary;
@@ -121,7 +122,7 @@ impl MotionModel {
     /// manifest lists for the label kinds asked for (`max_jump_by_kind`,
     /// frame model), else the recommended sampling's.
     pub fn default_max_jump<'a>(&self, kinds: impl IntoIterator<Item = &'a String>) -> u32 {
-        let recommended = super::generate::RECOMMENDED.max_jump;
+        let recommended = super::sampling::RECOMMENDED.max_jump;
         match self {
             MotionModel::Flat(_) => recommended,
             MotionModel::Frame(s) => kinds

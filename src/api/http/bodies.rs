@@ -170,7 +170,7 @@ pub struct CollectionBody {
 }
 
 /// Sampling settings as JSON, all optional. Without a temperature the
-/// request gets the recommended setting (`lm::generate::RECOMMENDED`), with
+/// request gets the recommended setting (`lm::sampling::RECOMMENDED`), with
 /// its own `top_k` / `top_p` where given; `"temperature": 0` is greedy.
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -40,7 +40,7 @@ fn build_pick_and_round_trip() {
         seq("short", "sad", "run", 10, &v), // under the span: never chosen
     ];
     let kinds = vec!["style".to_string(), "content".to_string()];
-    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 1, None, None).unwrap();
+    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 1, None, SpanChoice::default()).unwrap();
     let len = (2.0 * v.fps).round() as usize;
     assert!(ex
         .items
@@ -80,7 +80,7 @@ fn build_pick_and_round_trip() {
         assert_eq!(ex.pick(&happy, s).unwrap().0.labels["style"], "happy");
     }
     // With two per value, both happy sequences are kept and seeds reach both.
-    let two = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, None, None).unwrap();
+    let two = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, None, SpanChoice::default()).unwrap();
     let picked: BTreeSet<&str> = (0..50)
         .map(|s| two.pick(&happy, s).unwrap().0.source.as_str())
         .collect();
@@ -147,7 +147,16 @@ fn a_judge_keeps_the_clearest_spans_and_pick_prefers_them() {
             ),
         ])
     };
-    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge), None).unwrap();
+    let ex = Exemplars::build(
+        &seqs,
+        &v,
+        &kinds,
+        2.0,
+        2,
+        Some(&judge),
+        SpanChoice::default(),
+    )
+    .unwrap();
     let len = (2.0 * v.fps).round() as usize;
     let starts: Vec<usize> = (1..=CANDIDATES)
         .map(|c| (300 - len) * c / (CANDIDATES + 1))
@@ -206,7 +215,9 @@ fn a_judge_keeps_the_clearest_spans_and_pick_prefers_them() {
     let bad = |_: &[u32]| -> Result<crate::lm::model::ClassTable, LmError> {
         Err(LmError::invalid("model", "classes", "no heads"))
     };
-    assert!(Exemplars::build(&seqs, &v, &kinds, 2.0, 1, Some(&bad), None).is_err());
+    assert!(
+        Exemplars::build(&seqs, &v, &kinds, 2.0, 1, Some(&bad), SpanChoice::default()).is_err()
+    );
 }
 
 #[test]
@@ -238,20 +249,52 @@ fn covering_a_kind_spreads_a_values_spans_over_it() {
     let sources = |ex: &Exemplars| -> BTreeSet<String> {
         ex.items.iter().map(|e| e.source.clone()).collect()
     };
-    let plain = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge), None).unwrap();
+    let plain = Exemplars::build(
+        &seqs,
+        &v,
+        &kinds,
+        2.0,
+        2,
+        Some(&judge),
+        SpanChoice::default(),
+    )
+    .unwrap();
     assert_eq!(
         sources(&plain),
         ["walk-a", "walk-b"].map(String::from).into()
     );
-    let covered =
-        Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge), Some("content")).unwrap();
+    let covered = Exemplars::build(
+        &seqs,
+        &v,
+        &kinds,
+        2.0,
+        2,
+        Some(&judge),
+        SpanChoice {
+            cover: Some("content"),
+            from_start: false,
+        },
+    )
+    .unwrap();
     // The best walk, then the best run: the run take gets its turn.
     assert_eq!(
         sources(&covered),
         ["walk-a", "run"].map(String::from).into()
     );
     // Three per value: every take, each once.
-    let all = Exemplars::build(&seqs, &v, &kinds, 2.0, 3, Some(&judge), Some("content")).unwrap();
+    let all = Exemplars::build(
+        &seqs,
+        &v,
+        &kinds,
+        2.0,
+        3,
+        Some(&judge),
+        SpanChoice {
+            cover: Some("content"),
+            from_start: false,
+        },
+    )
+    .unwrap();
     assert_eq!(all.len(), 3);
     // Turn-taking keeps each group's order.
     assert_eq!(
@@ -275,7 +318,7 @@ fn a_value_with_only_short_takes_gets_them_whole() {
         seq("too-short", "sad", "run", 5, &v), // under 0.3 of a span
     ];
     let kinds = vec!["style".to_string(), "content".to_string()];
-    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, None, None).unwrap();
+    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, None, SpanChoice::default()).unwrap();
     let mut sad = Labels::new();
     sad.insert("style".into(), "sad".into());
     let picked: BTreeSet<(String, usize)> = (0..40)
@@ -307,4 +350,62 @@ fn a_value_with_only_short_takes_gets_them_whole() {
     let back = Exemplars::load(&dir, &v).unwrap().unwrap();
     assert_eq!(back.pick(&sad, 3).unwrap().1, ex.pick(&sad, 3).unwrap().1);
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn from_start_takes_each_span_from_its_takes_opening() {
+    let v = vocab();
+    let fl = v.frame_len();
+    let seqs = vec![
+        seq("a", "happy", "walk", 300, &v),
+        seq("b", "happy", "walk", 280, &v),
+        seq("c", "happy", "run", 60, &v),
+        seq("d", "sad", "walk", 300, &v),
+    ];
+    let kinds = vec!["style".to_string(), "content".to_string()];
+    // The judge likes spans that start late: from inside the takes it
+    // would pick their last candidate spans; openings have no choice.
+    let judge = |t: &[u32]| -> Result<crate::lm::model::ClassTable, LmError> {
+        let start = t[0] as f64 / 300.0;
+        Ok(vec![(
+            "style".to_string(),
+            vec![("happy".into(), start), ("sad".into(), start)],
+        )])
+    };
+    let choice = SpanChoice {
+        cover: Some("content"),
+        from_start: true,
+    };
+    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge), choice).unwrap();
+    let len = (2.0 * v.fps).round() as usize;
+    assert!(!ex.is_empty());
+    for (e, d) in ex.items.iter().zip(&ex.decoded) {
+        let s = seqs.iter().find(|s| s.0 == e.source).unwrap();
+        assert_eq!((e.start_frame, e.frames), (0, len), "{e:?}");
+        assert_eq!(d[..], s.2[..len * fl]);
+    }
+    // Happy's two spans cover both its contents: the best walk opening and
+    // the run's (a take only 3 s long, whose opening is still a span).
+    let happy: BTreeSet<&str> = ex
+        .items
+        .iter()
+        .filter(|e| e.chosen_for.iter().any(|c| c.value == "happy"))
+        .map(|e| e.labels["content"].as_str())
+        .collect();
+    assert_eq!(happy, ["run", "walk"].into_iter().collect());
+    // Without from_start the same judge takes spans from inside the takes.
+    let inside = Exemplars::build(
+        &seqs,
+        &v,
+        &kinds,
+        2.0,
+        2,
+        Some(&judge),
+        SpanChoice {
+            from_start: false,
+            ..choice
+        },
+    )
+    .unwrap();
+    assert!(inside.items.iter().all(|e| e.start_frame > 0));
 }

@@ -1,0 +1,203 @@
+//! How a generator draws each token: [`Sampling`] (temperature, top-k,
+//! top-p, and the frame model's keep_near, max_jump, guidance and posture),
+//! its checks, and [`RECOMMENDED`], what a request naming none gets.
+
+use super::LmError;
+use rand::rngs::StdRng;
+use rand::Rng;
+
+/// How tokens are drawn: greedy when `temperature` is 0 (the thesis's
+/// choice), else softmax at `temperature`, keeping the `top_k` most likely
+/// (0 = all) and the smallest set reaching probability `top_p` (1 = all).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Sampling {
+    pub temperature: f64,
+    pub top_k: usize,
+    pub top_p: f64,
+    pub seed: u64,
+    /// Classifier-free guidance on the frame model's global state:
+    /// `h_u + guidance (h_c − h_u)` between the labelled and the unlabelled
+    /// state (1 = plain conditioning; needs labels and a model trained with
+    /// the conditioning at every frame; costs a second global step a frame).
+    pub guidance: f64,
+    /// Frame model only: the changes of at most this many bins (either
+    /// way) from the previous frame are never cut by `top_k` / `top_p`.
+    /// Slow joints move a bin every few frames; a nucleus that cuts their
+    /// ±1 changes freezes them (0 = cut like any other token).
+    pub keep_near: u32,
+    /// Frame model only: no slot moves more than this many bins (1° for a
+    /// joint angle; the shorter way round) from one frame to the next
+    /// (0 = no limit). The model can always jump (an escape to any bin
+    /// outside its change window), and one jump invites the next: a clip
+    /// that starts to jitter rarely recovers.
+    pub max_jump: u32,
+    /// Frame model only: the pull of every joint toward where the asked-for
+    /// labels hold it in their training takes ([`super::posture`]; 0 = off;
+    /// needs labels and the model folder's postures.json).
+    pub posture: f64,
+}
+
+impl Default for Sampling {
+    fn default() -> Self {
+        Sampling {
+            temperature: 0.0,
+            top_k: 0,
+            top_p: 1.0,
+            seed: 0,
+            guidance: 1.0,
+            keep_near: 0,
+            max_jump: 0,
+            posture: 0.0,
+        }
+    }
+}
+
+/// The sampling a request gets when it names none (only a seed, or
+/// nothing): of the settings `choreo eval generate` scored on held-out
+/// Bandai (style) and AIST++-VRM (genre) clips with the bundled frame
+/// model, the one that keeps the body moving with acceleration and jerk
+/// nearest real (README, "Generation"): t 1, top-p 0.95, and the ±1-bin
+/// changes never cut (`keep_near` 1; without it, continuing a style
+/// exemplar froze 27 % / 25 % of 1 s windows, with it 8 % / 13 %; since
+/// session 19 the ±2-bin changes, which brought AIST++-VRM's frozen share
+/// from 15 % to 9–10 % and its acceleration from 0.57 to 0.68–0.71 of
+/// real), and no slot moving more than 48 bins a frame (`max_jump`: fewer
+/// clips that jitter away; README, "Exemplars the heads choose").
+/// Greedy decoding freezes the body: the likeliest change of every slot
+/// is "none".
+pub const RECOMMENDED: Sampling = Sampling {
+    temperature: 1.0,
+    top_k: 0,
+    top_p: 0.95,
+    seed: 0,
+    guidance: 1.0,
+    keep_near: 2,
+    max_jump: 48,
+    posture: 0.0,
+};
+
+impl Sampling {
+    /// [`RECOMMENDED`] with this seed.
+    pub fn recommended(seed: u64) -> Sampling {
+        Sampling {
+            seed,
+            ..RECOMMENDED
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), LmError> {
+        if !(self.temperature.is_finite() && (0.0..=10.0).contains(&self.temperature)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.temperature",
+                format!("{} (want 0 to 10; 0 = greedy)", self.temperature),
+            ));
+        }
+        if !(self.guidance.is_finite() && (0.0..=10.0).contains(&self.guidance)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.guidance",
+                format!("{} (want 0 to 10; 1 = plain conditioning)", self.guidance),
+            ));
+        }
+        if self.keep_near > 64 {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.keep_near",
+                format!("{} (want 0 to 64 bins)", self.keep_near),
+            ));
+        }
+        if !(self.posture.is_finite() && (0.0..=10.0).contains(&self.posture)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.posture",
+                format!("{} (want 0 to 10; 0 = off)", self.posture),
+            ));
+        }
+        if self.max_jump > 180 {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.max_jump",
+                format!("{} (want 0 to 180 bins; 0 = no limit)", self.max_jump),
+            ));
+        }
+        if !(self.top_p > 0.0 && self.top_p <= 1.0) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.top_p",
+                format!("{} (want 0 < top_p ≤ 1)", self.top_p),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Draws one index from `logits` (a slot's allowed range).
+    pub fn draw(&self, logits: &[f32], rng: &mut StdRng) -> usize {
+        self.draw_keeping(logits, rng, |_| false)
+    }
+
+    /// As [`Sampling::draw`], but the indices `kept` says yes to are never
+    /// cut by top-k or top-p (they still need their own probability).
+    pub fn draw_keeping(
+        &self,
+        logits: &[f32],
+        rng: &mut StdRng,
+        kept: impl Fn(usize) -> bool,
+    ) -> usize {
+        let argmax = || {
+            logits
+                .iter()
+                .enumerate()
+                .fold(
+                    (0, f32::NEG_INFINITY),
+                    |b, (i, &v)| if v > b.1 { (i, v) } else { b },
+                )
+                .0
+        };
+        if self.temperature == 0.0 {
+            return argmax();
+        }
+        let mut idx: Vec<usize> = (0..logits.len()).collect();
+        idx.sort_by(|&a, &b| logits[b].total_cmp(&logits[a]));
+        let t = self.temperature as f32;
+        let m = logits[idx[0]];
+        let mut w: Vec<f64> = idx
+            .iter()
+            .map(|&i| (((logits[i] - m) / t) as f64).exp())
+            .collect();
+        let mut keep = idx.len();
+        if self.top_k > 0 {
+            keep = keep.min(self.top_k);
+        }
+        let z: f64 = w[..keep].iter().sum();
+        if self.top_p < 1.0 {
+            let mut acc = 0.0;
+            for (k, wi) in w.iter().enumerate().take(keep) {
+                acc += wi / z;
+                if acc >= self.top_p {
+                    keep = k + 1;
+                    break;
+                }
+            }
+        }
+        // Protected indices past the cut move up, in order, behind it.
+        let mut k = keep;
+        for j in keep..idx.len() {
+            if kept(idx[j]) {
+                idx.swap(k, j);
+                w.swap(k, j);
+                k += 1;
+            }
+        }
+        let keep = k;
+        let z: f64 = w[..keep].iter().sum();
+        let mut u = rng.gen::<f64>() * z;
+        for k in 0..keep {
+            u -= w[k];
+            if u <= 0.0 {
+                return idx[k];
+            }
+        }
+        idx[keep - 1]
+    }
+}
