@@ -566,3 +566,23 @@ async fn lm_embedding_from_the_frame_model() {
     );
     assert!(hits[0].source_path.ends_with("fast.npz") && hits[0].score > 0.9999);
 }
+
+/// Processes opening one new SQLite store at the same moment (an ingest
+/// and a server, or a test reading an ingest's file) all get the store:
+/// SQLite has no migration lock, so the later ones' first CREATE meets the
+/// first one's table, and the store runs its migrations again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stores_opened_at_once_on_a_new_file_all_open() {
+    for round in 0..20 {
+        let dir = tempfile::tempdir().unwrap();
+        let db = dir.path().join("race.db");
+        let opens = (0..4).map(|_| {
+            let db = db.clone();
+            tokio::spawn(async move { Store::open(&db).await })
+        });
+        for o in futures_util::future::join_all(opens).await {
+            let st = o.unwrap().unwrap_or_else(|e| panic!("round {round}: {e}"));
+            assert_eq!(st.counts().await.unwrap().0, 0);
+        }
+    }
+}

@@ -234,6 +234,9 @@ static POSTGRES_MIGRATIONS: sqlx::migrate::Migrator = sqlx::migrate!("./migratio
 /// How long a request waits for a database connection before the store
 /// answers "unavailable" (PostgreSQL down) rather than hanging.
 const ACQUIRE_TIMEOUT: Duration = Duration::from_secs(3);
+/// How often a SQLite store's migrations are run again after failing (a
+/// second process migrating the same new file at the same moment).
+const MIGRATE_RETRIES: u32 = 5;
 
 impl Store {
     /// Open (creating if missing) and migrate a SQLite store.
@@ -333,13 +336,27 @@ impl Store {
                 known,
             });
         }
-        migrator
-            .run(&pool)
-            .await
-            .map_err(|source| StoreError::Migrate {
-                path: label.clone(),
-                source,
-            })?;
+        // SQLite has no advisory lock: two processes opening a new store at
+        // once (an ingest and a server) both find no migration applied,
+        // and the second's CREATE fails on the first's table. Each
+        // migration commits whole, so running again a moment later finds
+        // it applied and goes on from there.
+        let mut tries = 0;
+        loop {
+            match migrator.run(&pool).await {
+                Ok(()) => break,
+                Err(_) if dialect == Dialect::Sqlite && tries < MIGRATE_RETRIES => {
+                    tries += 1;
+                    tokio::time::sleep(Duration::from_millis(100 * tries as u64)).await;
+                }
+                Err(source) => {
+                    return Err(StoreError::Migrate {
+                        path: label.clone(),
+                        source,
+                    })
+                }
+            }
+        }
         Ok(Store {
             pool,
             dialect,

@@ -120,6 +120,23 @@ fn build_pick_and_round_trip() {
     assert!(Exemplars::load(&dir, &v).unwrap().is_none());
 }
 
+/// A judge of spans by where they start (frame tokens count frames):
+/// "happy" and "run" likelier the later, "sad" and "walk" the earlier; no
+/// head for anything else.
+fn by_start(t: &[u32]) -> Result<crate::lm::model::ClassTable, LmError> {
+    let start = t[0] as f64 / 300.0;
+    Ok(vec![
+        (
+            "style".to_string(),
+            vec![("happy".into(), start), ("sad".into(), 1.0 - start)],
+        ),
+        (
+            "content".to_string(),
+            vec![("walk".into(), 1.0 - start), ("run".into(), start)],
+        ),
+    ])
+}
+
 #[test]
 fn a_judge_keeps_the_clearest_spans_and_pick_prefers_them() {
     let v = vocab();
@@ -131,22 +148,9 @@ fn a_judge_keeps_the_clearest_spans_and_pick_prefers_them() {
         seq("d", "sad", "walk", 300, &v),
     ];
     let kinds = vec!["style".to_string(), "content".to_string()];
-    // The judge: "happy" is likelier the later the span starts (frame
-    // tokens count frames), and "walk" the earlier; no head for anything
-    // else.
-    let judge = |t: &[u32]| -> Result<crate::lm::model::ClassTable, LmError> {
-        let start = t[0] as f64 / 300.0;
-        Ok(vec![
-            (
-                "style".to_string(),
-                vec![("happy".into(), start), ("sad".into(), 1.0 - start)],
-            ),
-            (
-                "content".to_string(),
-                vec![("walk".into(), 1.0 - start), ("run".into(), start)],
-            ),
-        ])
-    };
+    // The judge: "happy" is likelier the later the span starts, and "walk"
+    // the earlier.
+    let judge = by_start;
     let ex = Exemplars::build(
         &seqs,
         &v,
@@ -363,15 +367,9 @@ fn from_start_takes_each_span_from_its_takes_opening() {
         seq("d", "sad", "walk", 300, &v),
     ];
     let kinds = vec!["style".to_string(), "content".to_string()];
-    // The judge likes spans that start late: from inside the takes it
-    // would pick their last candidate spans; openings have no choice.
-    let judge = |t: &[u32]| -> Result<crate::lm::model::ClassTable, LmError> {
-        let start = t[0] as f64 / 300.0;
-        Ok(vec![(
-            "style".to_string(),
-            vec![("happy".into(), start), ("sad".into(), start)],
-        )])
-    };
+    // Happiness grows with a span's start: from inside the takes the
+    // judge would pick their last candidate spans; openings have no choice.
+    let judge = by_start;
     let choice = SpanChoice {
         cover: Some("content"),
         from_start: true,
