@@ -253,52 +253,26 @@ fn covering_a_kind_spreads_a_values_spans_over_it() {
     let sources = |ex: &Exemplars| -> BTreeSet<String> {
         ex.items.iter().map(|e| e.source.clone()).collect()
     };
-    let plain = Exemplars::build(
-        &seqs,
-        &v,
-        &kinds,
-        2.0,
-        2,
-        Some(&judge),
-        SpanChoice::default(),
-    )
-    .unwrap();
+    let build = |per_label: usize, cover: Option<&str>| {
+        let choice = SpanChoice {
+            cover,
+            from_start: false,
+        };
+        Exemplars::build(&seqs, &v, &kinds, 2.0, per_label, Some(&judge), choice).unwrap()
+    };
+    let plain = build(2, None);
     assert_eq!(
         sources(&plain),
         ["walk-a", "walk-b"].map(String::from).into()
     );
-    let covered = Exemplars::build(
-        &seqs,
-        &v,
-        &kinds,
-        2.0,
-        2,
-        Some(&judge),
-        SpanChoice {
-            cover: Some("content"),
-            from_start: false,
-        },
-    )
-    .unwrap();
+    let covered = build(2, Some("content"));
     // The best walk, then the best run: the run take gets its turn.
     assert_eq!(
         sources(&covered),
         ["walk-a", "run"].map(String::from).into()
     );
     // Three per value: every take, each once.
-    let all = Exemplars::build(
-        &seqs,
-        &v,
-        &kinds,
-        2.0,
-        3,
-        Some(&judge),
-        SpanChoice {
-            cover: Some("content"),
-            from_start: false,
-        },
-    )
-    .unwrap();
+    let all = build(3, Some("content"));
     assert_eq!(all.len(), 3);
     // Turn-taking keeps each group's order.
     assert_eq!(
@@ -374,7 +348,8 @@ fn from_start_takes_each_span_from_its_takes_opening() {
         cover: Some("content"),
         from_start: true,
     };
-    let ex = Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge), choice).unwrap();
+    let build = |choice| Exemplars::build(&seqs, &v, &kinds, 2.0, 2, Some(&judge), choice).unwrap();
+    let ex = build(choice);
     let len = (2.0 * v.fps).round() as usize;
     assert!(!ex.is_empty());
     for (e, d) in ex.items.iter().zip(&ex.decoded) {
@@ -392,18 +367,9 @@ fn from_start_takes_each_span_from_its_takes_opening() {
         .collect();
     assert_eq!(happy, ["run", "walk"].into_iter().collect());
     // Without from_start the same judge takes spans from inside the takes.
-    let inside = Exemplars::build(
-        &seqs,
-        &v,
-        &kinds,
-        2.0,
-        2,
-        Some(&judge),
-        SpanChoice {
-            from_start: false,
-            ..choice
-        },
-    )
-    .unwrap();
+    let inside = build(SpanChoice {
+        from_start: false,
+        ..choice
+    });
     assert!(inside.items.iter().all(|e| e.start_frame > 0));
 }
