@@ -72,6 +72,7 @@ fn settings(steps: usize) -> RunSettings {
         mask_rate: 0.0,
         max_seconds: 0.0,
         corpus_weights: Default::default(),
+        balance: None,
     }
 }
 
@@ -208,6 +209,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         keep_near: 1,
         max_jump: 0,
         posture: 0.0,
+        context: 0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;
@@ -222,6 +224,40 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
     let a = run(&free);
     let b = run(&free);
     assert_eq!(a, b, "one seed, one stream");
+    // sampling.context: a window of 4 frames gives the same frames until it
+    // first slides (the 5th frame reads 2 of history, not 4), then its own
+    // clip, the same for one seed.
+    let short = Sampling {
+        context: 4,
+        ..sampling.clone()
+    };
+    let s4 = run_with(&short, &free);
+    assert_eq!(s4, run_with(&short, &free));
+    assert_eq!(s4[..4 * fl], a[..4 * fl]);
+    assert_ne!(s4, a);
+    let whole = Sampling {
+        context: net.cfg.max_frames as u32,
+        ..sampling.clone()
+    };
+    assert_eq!(run_with(&whole, &free), a, "context = the window: as 0");
+    for (bad, says) in [
+        (1, "at least 2"),
+        (net.cfg.max_frames as u32 + 1, "at most"),
+    ] {
+        let e = model
+            .generator(
+                &labels,
+                &[],
+                Sampling {
+                    context: bad,
+                    ..sampling.clone()
+                },
+            )
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("sampling.context") && e.contains(says), "{e}");
+    }
     assert_eq!(a.len(), n * fl);
     for f in a.chunks_exact(fl) {
         assert_eq!(f[fl - 1], v.sep());
@@ -981,6 +1017,61 @@ fn corpus_weights_change_the_draws_and_bad_ones_are_refused() {
             .to_string();
         assert!(e.contains("--corpus-weight") && e.contains(says), "{e}");
     }
+}
+
+#[test]
+fn balance_gives_every_value_of_a_kind_the_same_share() {
+    let v = vocab();
+    let mut c = corpus(&v);
+    let fl = v.frame_len();
+    assert!(c.train.len() >= 4, "{} training sequences", c.train.len());
+    // One short "run" take, the rest long "walk" takes, and one sequence
+    // without a content label at all.
+    for (i, s) in c.train.iter_mut().enumerate() {
+        s.labels.remove("content");
+        match i {
+            0 => {
+                s.tokens.truncate(s.tokens.len() / 4 / fl * fl);
+                s.labels.insert("content".into(), "run".into());
+            }
+            1 => {}
+            _ => {
+                s.labels.insert("content".into(), "walk".into());
+            }
+        }
+    }
+    let share = |d: &FrameData, i: usize| -> f64 {
+        let prev = if i == 0 { 0 } else { d.cum[i - 1] };
+        (d.cum[i] - prev) as f64 / *d.cum.last().unwrap() as f64
+    };
+    let plain = FrameData::new(&c.train, fl);
+    let b = FrameData::balanced(&c.train, fl, &BTreeMap::new(), Some("content")).unwrap();
+    let n = c.train.len();
+    let walk: f64 = (2..n).map(|i| share(&b, i)).sum();
+    // Before: the run take is a small share; after: run = walk.
+    assert!(share(&plain, 0) < 0.5 * (2..n).map(|i| share(&plain, i)).sum::<f64>());
+    assert!(
+        (share(&b, 0) - walk).abs() < 1e-3,
+        "run {} walk {walk}",
+        share(&b, 0)
+    );
+    // The unlabelled sequence keeps its length-weighted share, and walks
+    // keep their proportions to each other.
+    assert!((share(&b, 1) - share(&plain, 1)).abs() < 1e-3);
+    let ratio = |d: &FrameData| share(d, 2) / share(d, 3);
+    assert!((ratio(&b) - ratio(&plain)).abs() < 1e-3);
+    // Unbalanced draws are unchanged by the new code path.
+    assert_eq!(
+        FrameData::balanced(&c.train, fl, &BTreeMap::new(), None)
+            .unwrap()
+            .cum,
+        plain.cum
+    );
+    let e = FrameData::balanced(&c.train, fl, &BTreeMap::new(), Some("genre"))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("--balance") && e.contains("\"genre\""), "{e}");
 }
 
 #[test]

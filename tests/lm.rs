@@ -99,6 +99,7 @@ fn trained(cfg: ModelConfig, v: &Vocabulary) -> Gpt {
         mask_rate: 0.15,
         max_seconds: 0.0,
         corpus_weights: Default::default(),
+        balance: None,
     };
     let mut opt = AdamW::new(s.lr, s.weight_decay);
     let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(3);
@@ -175,6 +176,7 @@ fn streaming_equals_one_shot_and_decodes_to_valid_motion() {
         keep_near: 0,
         max_jump: 0,
         posture: 0.0,
+        context: 0,
     };
     // 11 frames: the window (4) slides several times.
     let run = |n: usize| {

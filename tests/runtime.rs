@@ -149,6 +149,7 @@ fn an_ort_stream_is_the_one_shot_output_for_one_seed() {
         keep_near: 1,
         max_jump: 0,
         posture: 0.0,
+        context: 0,
     };
     // Past the context, so the window slides.
     let n = 2 * model.context_frames() + 3;
@@ -256,7 +257,7 @@ fn tract_and_ort_agree_on_the_flat_model() {
 /// The flat GPT has no label postures: a request that asks it to pull
 /// toward them is refused naming the field, not run without the pull.
 #[test]
-fn the_flat_model_refuses_a_posture_pull() {
+fn the_flat_model_refuses_a_posture_pull_and_a_shorter_context() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/flat");
     let m = MotionModel::load(&dir).unwrap();
     assert!(!m.has_postures());
@@ -269,6 +270,17 @@ fn the_flat_model_refuses_a_posture_pull() {
     };
     let e = m.generator(&labels, &[], pulled).err().unwrap().to_string();
     assert!(e.contains("sampling.posture") && e.contains("flat"), "{e}");
+    // Nor can it read less than its window (sampling.context).
+    let shorter = Sampling {
+        context: 4,
+        ..Sampling::recommended(1)
+    };
+    let e = m
+        .generator(&labels, &[], shorter)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("sampling.context") && e.contains("flat"), "{e}");
     // Without the pull it generates.
     let mut g = m.generator(&labels, &[], Sampling::recommended(1)).unwrap();
     let fl = m.vocabulary().frame_len();

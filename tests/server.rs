@@ -587,6 +587,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             keep_near: 0,
             max_jump: 0,
             posture: 0.0,
+            context: 0,
         }),
         exemplar: String::new(),
         candidates: 0,
@@ -816,7 +817,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     let gz = gz.output.unwrap().rotations;
     assert!(gz.iter().zip(&zr).all(|(a, b)| (a - b).abs() < 1e-12));
 
-    // keep_near, max_jump and posture over both transports: the same
+    // keep_near, max_jump, posture and context over both transports: the same
     // frames; out of range is a 400 naming the field (gRPC's max_jump 0 =
     // the recommended limit, as REST's absent field). The bundled model's
     // postures.json has the genre's posture.
@@ -824,6 +825,8 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         ("keep_near", 1.0, 65.0),
         ("max_jump", 2.0, 181.0),
         ("posture", 1.5, 11.0),
+        // 8 frames of history: the window slides within the 24 frames.
+        ("context", 8.0, 201.0),
     ] {
         let mut g = greq.clone();
         let gs = g.sampling.as_mut().unwrap();
@@ -837,6 +840,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         match field {
             "keep_near" => gs.keep_near = ok as u32,
             "max_jump" => gs.max_jump = ok as u32,
+            "context" => gs.context = ok as u32,
             _ => gs.posture = ok,
         }
         let g = client.generate(g).await.unwrap().into_inner();

@@ -77,6 +77,7 @@ impl Choreo for ChoreoGrpc {
                 } else {
                     r.sampling.posture
                 },
+                context: r.sampling.context,
             }),
         }))
     }

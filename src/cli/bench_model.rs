@@ -87,6 +87,7 @@ pub fn run(
             keep_near: 0,
             max_jump: 0,
             posture: 0.0,
+            context: 0,
         },
     )?;
     let mut lat = Vec::with_capacity(frames);
@@ -126,6 +127,7 @@ pub fn run(
                 keep_near: 0,
                 max_jump: 0,
                 posture: 0.0,
+                context: 0,
             },
         )?;
         let mut lat = Vec::with_capacity(n);

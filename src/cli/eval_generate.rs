@@ -7,21 +7,22 @@ use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use std::path::{Path, PathBuf};
 
-/// `T:K:P[:G[:N[:J[:W]]]]` (temperature, top-k, top-p, guidance, keep_near,
-/// max_jump, posture), or `greedy`.
+/// `T:K:P[:G[:N[:J[:W[:C]]]]]` (temperature, top-k, top-p, guidance,
+/// keep_near, max_jump, posture, context), or `greedy`.
 pub fn parse_sampling(s: &str) -> Result<Sampling> {
     if s == "greedy" {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    let (t, k, p, g, n, j, w) = match parts[..] {
-        [t, k, p] => (t, k, p, "1", "0", "0", "0"),
-        [t, k, p, g] => (t, k, p, g, "0", "0", "0"),
-        [t, k, p, g, n] => (t, k, p, g, n, "0", "0"),
-        [t, k, p, g, n, j] => (t, k, p, g, n, j, "0"),
-        [t, k, p, g, n, j, w] => (t, k, p, g, n, j, w),
+    let (t, k, p, g, n, j, w, c) = match parts[..] {
+        [t, k, p] => (t, k, p, "1", "0", "0", "0", "0"),
+        [t, k, p, g] => (t, k, p, g, "0", "0", "0", "0"),
+        [t, k, p, g, n] => (t, k, p, g, n, "0", "0", "0"),
+        [t, k, p, g, n, j] => (t, k, p, g, n, j, "0", "0"),
+        [t, k, p, g, n, j, w] => (t, k, p, g, n, j, w, "0"),
+        [t, k, p, g, n, j, w, c] => (t, k, p, g, n, j, w, c),
         _ => bail!(
-            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture]]]]) or greedy"
+            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context]]]]]) or greedy"
         ),
     };
     let sm = Sampling {
@@ -47,6 +48,9 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         posture: w
             .parse()
             .with_context(|| format!("--sampling: posture '{w}'"))?,
+        context: c
+            .parse()
+            .with_context(|| format!("--sampling: context '{c}'"))?,
     };
     sm.validate()
         .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;

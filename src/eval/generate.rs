@@ -80,33 +80,23 @@ pub struct GenOptions {
 /// A sampling setting as a row names it.
 pub fn sampling_name(s: &Sampling) -> String {
     if s.temperature == 0.0 {
-        "greedy".into()
-    } else {
-        let g = if s.guidance == 1.0 {
-            String::new()
-        } else {
-            format!(" guidance={}", s.guidance)
-        };
-        let n = if s.keep_near == 0 {
-            String::new()
-        } else {
-            format!(" keep_near={}", s.keep_near)
-        };
-        let j = if s.max_jump == 0 {
-            String::new()
-        } else {
-            format!(" max_jump={}", s.max_jump)
-        };
-        let w = if s.posture == 0.0 {
-            String::new()
-        } else {
-            format!(" posture={}", s.posture)
-        };
-        format!(
-            "t={} top_k={} top_p={}{g}{n}{j}{w}",
-            s.temperature, s.top_k, s.top_p
-        )
+        return "greedy".into();
     }
+    // Each optional setting, named only when it is not its "off" value.
+    let extras = [
+        ("guidance", s.guidance, 1.0),
+        ("keep_near", s.keep_near as f64, 0.0),
+        ("max_jump", s.max_jump as f64, 0.0),
+        ("posture", s.posture, 0.0),
+        ("context", s.context as f64, 0.0),
+    ];
+    let mut name = format!("t={} top_k={} top_p={}", s.temperature, s.top_k, s.top_p);
+    for (field, value, off) in extras {
+        if value != off {
+            name.push_str(&format!(" {field}={value}"));
+        }
+    }
+    name
 }
 
 /// A real clip of the folder: its name, labels and tokens.

@@ -79,7 +79,17 @@ impl FrameGenerator {
                 format!("token {bad} is not a value token"),
             ));
         }
-        let keep = (c.max_frames / 2).max(1).min(frames.len());
+        if sampling.context as usize > c.max_frames {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.context",
+                format!(
+                    "{} frames (this model's window holds at most {}; 0 = all of it)",
+                    sampling.context, c.max_frames
+                ),
+            ));
+        }
+        let keep = (window_len(&c, &sampling) / 2).max(1).min(frames.len());
         let pull = if sampling.posture > 0.0 && !labels.is_empty() {
             let p = session.postures.as_ref().ok_or_else(|| {
                 LmError::invalid(
@@ -277,7 +287,7 @@ impl FrameGenerator {
         }
         // The global window: when full, keep the last half, whose cache
         // (`next`) was filled as those frames came; then feed the frame.
-        let m = c.max_frames;
+        let m = window_len(&c, &self.sampling);
         let keep = (m / 2).max(1);
         if self.window.len() >= m {
             let cut = self.window.len() - keep;
@@ -486,5 +496,15 @@ mod tests {
                 }
             }
         }
+    }
+}
+
+/// The frames the global window holds: `sampling.context`, or the model's
+/// whole window when 0. The window slides by halves, so the model reads
+/// between half of it and all of it.
+fn window_len(c: &super::frame::FrameConfig, s: &Sampling) -> usize {
+    match s.context as usize {
+        0 => c.max_frames,
+        n => n.min(c.max_frames),
     }
 }

@@ -168,6 +168,13 @@ impl Generator {
                 "the flat GPT cannot pull toward label postures (the frame model can; 0 = off)",
             ));
         }
+        if sampling.context > 0 {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.context",
+                "the flat GPT reads its whole 8-frame window (the frame model can read less; 0 = whole)",
+            ));
+        }
         let m = &session.manifest;
         let cfg = &m.config;
         let prefix = request_prefix(&m.vocabulary, &cfg.cond_kinds, labels)?;

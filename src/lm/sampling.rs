@@ -35,6 +35,12 @@ pub struct Sampling {
     /// labels hold it in their training takes ([`super::posture`]; 0 = off;
     /// needs labels and the model folder's postures.json).
     pub posture: f64,
+    /// Frame model only: the frames of history the global transformer
+    /// reads (0 = the model's whole window, 200 for the bundled model).
+    /// A shorter history leaves the labels more of the prediction: the
+    /// clip holds its label longer, and moves less (README, "A shorter
+    /// history holds the label").
+    pub context: u32,
 }
 
 impl Default for Sampling {
@@ -48,6 +54,7 @@ impl Default for Sampling {
             keep_near: 0,
             max_jump: 0,
             posture: 0.0,
+            context: 0,
         }
     }
 }
@@ -74,6 +81,7 @@ pub const RECOMMENDED: Sampling = Sampling {
     keep_near: 2,
     max_jump: 48,
     posture: 0.0,
+    context: 0,
 };
 
 impl Sampling {
@@ -112,6 +120,13 @@ impl Sampling {
                 "request",
                 "sampling.posture",
                 format!("{} (want 0 to 10; 0 = off)", self.posture),
+            ));
+        }
+        if self.context == 1 {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.context",
+                "1 (want 0 = the model's whole window, or at least 2 frames)",
             ));
         }
         if self.max_jump > 180 {

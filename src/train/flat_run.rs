@@ -120,6 +120,7 @@ pub fn train(
         class_weight: 1.0,
         mask_rate: 0.15,
         corpus_weights: Default::default(),
+        balance: None,
         max_seconds: a.max_seconds,
     };
     let (mut state, model, mut opt) = match (resume_state, init_state) {

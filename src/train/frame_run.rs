@@ -40,6 +40,21 @@ impl FrameData {
         fl: usize,
         weights: &BTreeMap<String, f64>,
     ) -> Result<FrameData> {
+        Self::balanced(train, fl, weights, None)
+    }
+
+    /// [`FrameData::weighted`], and with `balance` = a label kind, the
+    /// sequences that carry that kind are drawn so that each of its values
+    /// gets the same share of their draws (their total unchanged): a value
+    /// whose takes are few or short is drawn as often as a common one.
+    /// Sequences without the kind keep their length-weighted share. A kind
+    /// that no training sequence carries is an error naming the flag.
+    pub fn balanced(
+        train: &[Sequence],
+        fl: usize,
+        weights: &BTreeMap<String, f64>,
+        balance: Option<&str>,
+    ) -> Result<FrameData> {
         for (name, w) in weights {
             if !train.iter().any(|s| &s.corpus == name) {
                 let mut have: Vec<&str> = train.iter().map(|s| s.corpus.as_str()).collect();
@@ -51,13 +66,37 @@ impl FrameData {
                 bail!("--corpus-weight: the weight of {name:?} must be a positive number, not {w}");
             }
         }
+        let base = |s: &Sequence| {
+            (s.frames(fl).max(1) as f64) * weights.get(&s.corpus).copied().unwrap_or(1.0)
+        };
+        // Per value of the balanced kind: its sequences' summed weight.
+        let mut by_value: BTreeMap<&str, f64> = BTreeMap::new();
+        if let Some(kind) = balance {
+            for s in train {
+                if let Some(v) = s.labels.get(kind) {
+                    *by_value.entry(v.as_str()).or_insert(0.0) += base(s);
+                }
+            }
+            if by_value.is_empty() {
+                bail!("--balance: no training sequence carries a {kind:?} label");
+            }
+        }
+        let even = by_value.values().sum::<f64>() / by_value.len().max(1) as f64;
+        // Balanced weights are fractions of frames: scaled so that rounding
+        // does not move a short take's share (plain draws keep whole frame
+        // counts, so a run resumed from before the flag draws as it did).
+        let scale = if balance.is_some() { 16.0 } else { 1.0 };
         let mut acc = 0;
         let mut cum = Vec::new();
         let seqs = train
             .iter()
             .map(|s| {
-                let w = weights.get(&s.corpus).copied().unwrap_or(1.0);
-                acc += ((s.frames(fl).max(1) as f64) * w).round().max(1.0) as usize;
+                let value = balance.and_then(|k| s.labels.get(k));
+                let w = match value.and_then(|v| by_value.get(v.as_str())) {
+                    Some(total) => base(s) * even / total,
+                    None => base(s),
+                };
+                acc += (scale * w).round().max(1.0) as usize;
                 cum.push(acc);
                 (
                     value_frames(&s.tokens, fl),
@@ -315,6 +354,9 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
         if !run.settings.corpus_weights.is_empty() {
             st.settings.corpus_weights = run.settings.corpus_weights.clone();
         }
+        if run.settings.balance.is_some() {
+            st.settings.balance = run.settings.balance.clone();
+        }
         (st, net, opt)
     } else {
         let cfg = FrameConfig {
@@ -347,7 +389,7 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
         (st, net, opt)
     };
     let s = st.settings.clone();
-    let data = FrameData::weighted(&corpus.train, fl, &s.corpus_weights)?;
+    let data = FrameData::balanced(&corpus.train, fl, &s.corpus_weights, s.balance.as_deref())?;
     tracing::info!(
         "draws per corpus: {}",
         data.shares(&corpus.train)

@@ -49,6 +49,10 @@ pub struct RunSettings {
     /// model; a corpus not named keeps 1). Empty = length-weighted draws.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub corpus_weights: BTreeMap<String, f64>,
+    /// Frame model: draw the training sequences so that every value of
+    /// this label kind gets the same share (None = length-weighted).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub balance: Option<String>,
 }
 
 /// One logged point.

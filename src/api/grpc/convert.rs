@@ -126,6 +126,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
             guidance,
             max_jump,
             posture,
+            context: s.context,
             ..r
         };
     }
@@ -138,6 +139,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         keep_near: s.keep_near,
         max_jump,
         posture,
+        context: s.context,
     }
 }
 

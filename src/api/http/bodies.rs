@@ -194,6 +194,9 @@ pub struct SamplingJson {
     /// The pull toward the labels' postures (frame model; 0 = off);
     /// absent = the recommended value.
     pub posture: Option<f64>,
+    /// Frames of history the frame model reads (0 or absent = its whole
+    /// window).
+    pub context: Option<u32>,
 }
 
 impl SamplingJson {
@@ -221,6 +224,7 @@ impl SamplingJson {
                 keep_near: self.keep_near.unwrap_or(r.keep_near),
                 max_jump: self.max_jump.unwrap_or(r.max_jump),
                 posture: self.posture.unwrap_or(r.posture),
+                context: self.context.unwrap_or(r.context),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -232,6 +236,7 @@ impl SamplingJson {
                 keep_near: self.keep_near.unwrap_or(0),
                 max_jump: self.max_jump.unwrap_or(r.max_jump),
                 posture: self.posture.unwrap_or(r.posture),
+                context: self.context.unwrap_or(r.context),
             },
         }
     }

@@ -66,6 +66,7 @@ pub(crate) fn frame(a: FrameArgs, engine: &choreo::lm::engine::Engine) -> Result
             mask_rate: 0.0,
             max_seconds: a.max_seconds,
             corpus_weights: parse_corpus_weights(&a.corpus_weight)?,
+            balance: a.balance.clone(),
         },
     };
     if a.untrained {

@@ -212,6 +212,11 @@ struct FrameArgs {
     /// bandai=2`). The held-out sets are unchanged.
     #[arg(long = "corpus-weight", value_name = "NAME=W")]
     corpus_weight: Vec<String>,
+    /// Draw the sequences that carry this label kind so that each of its
+    /// values gets the same share of their draws (e.g. `--balance content`:
+    /// Bandai's runs and raised hands, short takes, as often as its walks).
+    #[arg(long, value_name = "KIND")]
+    balance: Option<String>,
 }
 
 #[derive(Subcommand)]
