@@ -1103,16 +1103,17 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .await
     .unwrap();
     for want in [
-        // The prompt request, the top_p 0, keep_near, max_jump and posture
-        // ones, the six per-kind defaults; the 400s: the bad
-        // exemplar, keep_near 65, max_jump 181, posture 11, the bad label
-        // and the over-long request; over gRPC the prompt request, best of
-        // 3, steered, root model and feet, exemplar none, top_p 0, keep_near
-        // 1, max_jump 2, posture 1.5, the style and the genre defaults; a steered
-        // stream, a feet stream, and a stream asking for 2 candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 11",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 6",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 12",
+        // The prompt request, the top_p 0, keep_near, max_jump, posture and
+        // context ones, the six per-kind defaults; the 400s: the bad
+        // exemplar, keep_near 65, max_jump 181, posture 11, context 201, the
+        // bad label and the over-long request; over gRPC the prompt request,
+        // best of 3, steered, root model and feet, exemplar none, top_p 0,
+        // keep_near 1, max_jump 2, posture 1.5, context 8, the style and the
+        // genre defaults; a steered stream, a feet stream, and a stream
+        // asking for 2 candidates refused.
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 12",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 7",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 13",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 3",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
