@@ -295,6 +295,17 @@ try {
     results.generate_held_frames = await page.evaluate(() => window.__studio.streamed);
     check(results.generate_held_frames >= 79, `held: ${results.generate_held_frames} frames of 80`);
     await page.uncheck("#g-hold");
+    // Keeping the label (the frame model reads its last 20 frames): the
+    // stream's start names context 20.
+    check(await page.$("#g-keep"), "the bundled frame model's page offers no keep-the-label box");
+    await page.check("#g-keep");
+    await page.click("#g-go");
+    await page.waitForSelector("#g-status .ok", { timeout: 120000 });
+    const kept = await page.evaluate(() => window.__studio.sampling);
+    check(kept && kept.context === 20, `keep: the stream ran ${JSON.stringify(kept)}`);
+    results.generate_kept_frames = await page.evaluate(() => window.__studio.streamed);
+    check(results.generate_kept_frames >= 79, `keep: ${results.generate_kept_frames} frames of 80`);
+    await page.uncheck("#g-keep");
   }
   noErrors(page);
   await shot(page, "generate");

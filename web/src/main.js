@@ -365,6 +365,8 @@ async function generatePage() {
       <span class="note">every 20 frames, 4 continuations; the model's class heads keep the likeliest (4× the work)</span></div>
     ${m.postures ? `<div class="row"><label for="g-hold">hold the style</label><input id="g-hold" type="checkbox">
       <span class="note">pull every joint and the body's tilt toward the labels' own posture, changes capped at 12° a frame (keeps the label to the end; livelier without)</span></div>` : ""}
+    ${m.kind === "motion-frame-lm" ? `<div class="row"><label for="g-keep">keep the label</label><input id="g-keep" type="checkbox">
+      <span class="note">the model reads only the last 1 s it made, so the labels weigh more: the clip holds its style longer, and moves less</span></div>` : ""}
     <div class="row"><label for="g-feet">feet on the floor</label><input id="g-feet" type="checkbox">
       <span class="note">the root travels as the planted foot says, so feet do not slide (the model's own path in the air)</span></div>
     <h3>Prompt joints</h3>
@@ -392,6 +394,7 @@ async function generate() {
     body.sampling.posture = 2;
     body.sampling.max_jump = 12;
   }
+  if ($("#g-keep")?.checked) body.sampling.context = 20;
   if ($("#g-feet").checked) body.root = "feet";
   const promptId = $("#g-prompt").value;
   const joints = chosenJoints("g");
