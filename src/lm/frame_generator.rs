@@ -499,12 +499,13 @@ mod tests {
     }
 }
 
-/// The frames the global window holds: `sampling.context`, or the model's
-/// whole window when 0. The window slides by halves, so the model reads
-/// between half of it and all of it.
+/// The frames the global window holds: `sampling.context` (never more
+/// than the model's window: [`FrameGenerator::new`] refuses that), or the
+/// model's whole window when 0. The window slides by halves, so the model
+/// reads between half of it and all of it.
 fn window_len(c: &super::frame::FrameConfig, s: &Sampling) -> usize {
     match s.context as usize {
         0 => c.max_frames,
-        n => n.min(c.max_frames),
+        n => n,
     }
 }

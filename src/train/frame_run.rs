@@ -82,6 +82,19 @@ impl FrameData {
             }
         }
         let even = by_value.values().sum::<f64>() / by_value.len().max(1) as f64;
+        if let Some(kind) = balance {
+            let total: f64 = train.iter().map(base).sum();
+            tracing::info!(
+                "balanced on {kind}: {} values, each {:.2} % of the draws (before: {})",
+                by_value.len(),
+                100.0 * even / total,
+                by_value
+                    .iter()
+                    .map(|(v, w)| format!("{v} {:.2} %", 100.0 * w / total))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
         // Balanced weights are fractions of frames: scaled so that rounding
         // does not move a short take's share (plain draws keep whole frame
         // counts, so a run resumed from before the flag draws as it did).
