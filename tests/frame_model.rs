@@ -1116,6 +1116,68 @@ fn a_run_from_an_export_records_its_parents_time_and_licences() {
     );
 }
 
+/// A deeper model started from an export (`--init-from` with more
+/// `--global-layers`): the parent's weights load, the blocks it lacks start
+/// as the identity, so the grown model's held-out bits are its parent's;
+/// one step of training then moves the new blocks.
+#[test]
+fn a_model_grown_by_blocks_starts_where_its_parent_ended() {
+    let v = vocab();
+    let c = corpus(&v);
+    let dev = Device::Cpu;
+    let parent = trained(&v, &c, 3);
+    let dir = export(&parent, &v);
+    let (_, t, file, _) = fr::init_source(dir.path(), &dev).unwrap();
+    let mut cfg = parent.cfg.clone();
+    cfg.global_layers += 1;
+    let grown = FrameNet::new(cfg, &dev).unwrap();
+    let fresh = grown.params.load_matching(&t, &file).unwrap();
+    let new_block = format!("g{}", parent.cfg.global_layers);
+    assert!(fresh.contains(&format!("{new_block}.q.w")), "{fresh:?}");
+    assert_eq!(
+        grown.params.zero_fresh_blocks(&fresh).unwrap(),
+        vec![new_block.clone()]
+    );
+    let bits = |n: &FrameNet| {
+        fr::evaluate(n, &v, &c.val, v.frame_len(), usize::MAX, &dev)
+            .unwrap()
+            .bits_per_frame
+    };
+    let (a, b) = (bits(&parent), bits(&grown));
+    assert!((a - b).abs() < 1e-4 * a, "parent {a} bits/frame, grown {b}");
+    // Training moves the new block's zeroed projection.
+    let s = settings(1);
+    let d = FrameData::new(&c.train, v.frame_len());
+    let mut opt = AdamW::new(s.lr, s.weight_decay);
+    let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(9);
+    fr::train_step(
+        &grown,
+        &mut opt,
+        &v,
+        &d,
+        grown.cfg.max_frames,
+        &s,
+        &mut rng,
+        &dev,
+    )
+    .unwrap();
+    let o = grown.params.w(&format!("{new_block}.o.w"));
+    let moved = o
+        .abs()
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
+    assert!(moved > 0.0, "the new block's output projection stayed zero");
+    // A block the parent had is never zeroed, whatever the list says.
+    assert!(grown
+        .params
+        .zero_fresh_blocks(&["g0.o.w".to_string()])
+        .unwrap()
+        .is_empty());
+}
+
 /// A model exported without class heads (a run without --classify) gets
 /// head slots for the kinds `fit-heads --classify` names; its other
 /// weights travel unchanged (checked inside against the weights read

@@ -395,6 +395,13 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
                     fresh.join(", ")
                 }
             );
+            // Blocks the parent lacks (a deeper model grown from it) start
+            // as the identity, so the grown model begins where its parent
+            // ended.
+            let grown = net.params.zero_fresh_blocks(&fresh)?;
+            if !grown.is_empty() {
+                tracing::info!("new blocks, starting as the identity: {}", grown.join(", "));
+            }
         }
         let mut st = FrameState::fresh(cfg, vocab, &run.settings, corpus);
         st.parent = parent;

@@ -185,6 +185,35 @@ impl Params {
         self.load(t, file, true)
     }
 
+    /// Sets to zero the residual projections (`*.o.w`, `*.fc2.w`) of the
+    /// blocks all of whose parameters are among `fresh` (those a warm start
+    /// did not find in its parent): such a block then adds nothing, so a
+    /// model grown by blocks computes exactly what its parent did until
+    /// training moves them. Returns the blocks zeroed.
+    pub fn zero_fresh_blocks(&self, fresh: &[String]) -> Result<Vec<String>> {
+        let mut blocks = Vec::new();
+        for name in fresh {
+            let Some(block) = name.strip_suffix(".o.w") else {
+                continue;
+            };
+            let parts = [
+                "ln1.w", "ln1.b", "q.w", "k.w", "v.w", "o.w", "fc1.w", "fc2.w",
+            ];
+            if !parts
+                .iter()
+                .all(|p| fresh.iter().any(|f| *f == format!("{block}.{p}")))
+            {
+                continue;
+            }
+            for p in ["o.w", "fc2.w"] {
+                let v = &self.0[&format!("{block}.{p}")];
+                v.set(&v.as_tensor().zeros_like()?)?;
+            }
+            blocks.push(block.to_string());
+        }
+        Ok(blocks)
+    }
+
     /// Replaces every parameter from named tensors, which must all be there
     /// with their shapes; errors name `file` and the field.
     pub fn load_tensors(&self, t: &BTreeMap<String, Tensor>, file: &str) -> anyhow::Result<()> {
