@@ -151,7 +151,10 @@ struct FrameArgs {
     /// folder, or of an exported model folder such as models/default (its
     /// vocabulary too; an export's fitted class heads are not taken);
     /// parameters it lacks keep their fresh initialisation (e.g.
-    /// `g_cond_all` when adding --cond-every).
+    /// `g_cond_all` when adding --cond-every), except whole blocks it
+    /// lacks (more --global-layers or --local-layers than the parent):
+    /// those start as the identity, so the deeper model begins where
+    /// its parent ended.
     #[arg(long, conflicts_with = "resume")]
     init_from: Option<PathBuf>,
     /// Export the configured network with its random initial weights to
