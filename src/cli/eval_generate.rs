@@ -14,17 +14,21 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    let (t, k, p, g, n, j, w, c) = match parts[..] {
-        [t, k, p] => (t, k, p, "1", "0", "0", "0", "0"),
-        [t, k, p, g] => (t, k, p, g, "0", "0", "0", "0"),
-        [t, k, p, g, n] => (t, k, p, g, n, "0", "0", "0"),
-        [t, k, p, g, n, j] => (t, k, p, g, n, j, "0", "0"),
-        [t, k, p, g, n, j, w] => (t, k, p, g, n, j, w, "0"),
-        [t, k, p, g, n, j, w, c] => (t, k, p, g, n, j, w, c),
-        _ => bail!(
+    if !(3..=8).contains(&parts.len()) {
+        bail!(
             "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context]]]]]) or greedy"
-        ),
-    };
+        );
+    }
+    // The optional fields, each its "off" value when left out.
+    let field = |i: usize, off: &'static str| parts.get(i).copied().unwrap_or(off);
+    let (t, k, p) = (parts[0], parts[1], parts[2]);
+    let (g, n, j, w, c) = (
+        field(3, "1"),
+        field(4, "0"),
+        field(5, "0"),
+        field(6, "0"),
+        field(7, "0"),
+    );
     let sm = Sampling {
         temperature: t
             .parse()

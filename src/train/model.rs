@@ -186,27 +186,28 @@ impl Params {
     }
 
     /// Sets to zero the residual projections (`*.o.w`, `*.fc2.w`) of the
-    /// blocks all of whose parameters are among `fresh` (those a warm start
-    /// did not find in its parent): such a block then adds nothing, so a
-    /// model grown by blocks computes exactly what its parent did until
-    /// training moves them. Returns the blocks zeroed.
+    /// blocks every one of whose parameters is among `fresh` (those a warm
+    /// start did not find in its parent): such a block then adds nothing,
+    /// so a model grown by blocks computes exactly what its parent did
+    /// until training moves them. Returns the blocks zeroed.
     pub fn zero_fresh_blocks(&self, fresh: &[String]) -> Result<Vec<String>> {
+        let fresh: std::collections::BTreeSet<&str> = fresh.iter().map(|s| s.as_str()).collect();
         let mut blocks = Vec::new();
-        for name in fresh {
+        for name in &fresh {
             let Some(block) = name.strip_suffix(".o.w") else {
                 continue;
             };
-            let parts = [
-                "ln1.w", "ln1.b", "q.w", "k.w", "v.w", "o.w", "fc1.w", "fc2.w",
-            ];
-            if !parts
-                .iter()
-                .all(|p| fresh.iter().any(|f| *f == format!("{block}.{p}")))
-            {
+            let prefix = format!("{block}.");
+            let whole = self
+                .0
+                .keys()
+                .filter(|k| k.starts_with(&prefix))
+                .all(|k| fresh.contains(k.as_str()));
+            if !whole {
                 continue;
             }
             for p in ["o.w", "fc2.w"] {
-                let v = &self.0[&format!("{block}.{p}")];
+                let v = &self.0[&format!("{prefix}{p}")];
                 v.set(&v.as_tensor().zeros_like()?)?;
             }
             blocks.push(block.to_string());
