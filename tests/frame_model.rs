@@ -1172,25 +1172,17 @@ fn a_model_grown_by_blocks_starts_where_its_parent_ended() {
     assert!(moved > 0.0, "the new block's output projection stayed zero");
     // A block only partly missing (here a list naming just its output
     // projection) is left as it is.
-    let before = grown
-        .params
-        .w("g0.o.w")
-        .flatten_all()
-        .unwrap()
-        .to_vec1::<f32>()
-        .unwrap();
+    let g0 = || -> Vec<f32> {
+        let w = grown.params.w("g0.o.w");
+        w.flatten_all().unwrap().to_vec1().unwrap()
+    };
+    let before = g0();
     assert!(grown
         .params
         .zero_fresh_blocks(&["g0.o.w".to_string()])
         .unwrap()
         .is_empty());
-    let after = grown
-        .params
-        .w("g0.o.w")
-        .flatten_all()
-        .unwrap()
-        .to_vec1::<f32>()
-        .unwrap();
+    let after = g0();
     assert_eq!(before, after);
     assert!(before.iter().any(|&x| x != 0.0));
 }
