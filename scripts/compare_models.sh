@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The flat GPT (the thesis's, 43 tokens a frame) against the frame model
 # (one global step a frame), trained on the same data with the same CPU
-# time, then measured the same way (README, "Flat against frame, same CPU
+# time, then measured the same way (docs/RESULTS.md, "Flat against frame, same CPU
 # time"). Both train at once, one thread each, under one time limit, so
 # each gets the same CPU seconds; the step counts size each cosine schedule
 # to end near that limit (measured here: ~3.0 s a flat step of 16 × 8

@@ -36,7 +36,7 @@ for seed in 0 100; do
     $C eval generate --model "$run-more/model" --data "$D/aistpp-vrm/motions" --labels genre --per-label 12 --seed $seed \
         --sampling 1:0:0.95:1:2:48 --exemplar auto --candidates $n --json
   done
-  # Steering by the class heads (README, "Steering"): 4 continuations of
+  # Steering by the class heads (docs/RESULTS.md, "Steering"): 4 continuations of
   # 20 frames ranked per round.
   $C eval generate --model "$run-more/model" --data "$D/bandai" --labels style --per-label 6 --seed $seed \
       --sampling 1:0:0.95:1:2:48 --exemplar auto --candidates 4 --rank-every 20 --json

@@ -2,7 +2,7 @@
 //! its own sampling seed, [`candidate_seed`]) and keep the one the model's own class heads
 //! find likeliest to carry the asked-for labels.
 //!
-//! The frame model barely reads its labels while it decodes (README, "What
+//! The frame model barely reads its labels while it decodes (docs/RESULTS.md, "What
 //! the labels are worth"), but its fitted class heads read a finished clip
 //! well (Table 4.8). Ranking whole samples by them steers without touching
 //! how each frame is drawn: every candidate is an ordinary sample, so the

@@ -12,7 +12,7 @@
 //! The pooled states alone ([`FrameSession::pooled_states`], the first
 //! version of `lm`) were measured too and lost to the spectral embeddings:
 //! a model trained to predict the next frame encodes what the body does
-//! now, which many performers share (README, "The frame model's reading as
+//! now, which many performers share (docs/RESULTS.md, "The frame model's reading as
 //! a search embedding").
 //!
 //! It reads the same window as the spectral embeddings: 128 frames of the

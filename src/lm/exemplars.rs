@@ -5,7 +5,7 @@
 //!
 //! Why: the frame model predicts the next frame almost entirely from the
 //! frames before it, and its labels are worth a fraction of a bit per frame
-//! (README, "What the labels are worth"), so labels alone do not steer what
+//! (docs/RESULTS.md, "What the labels are worth"), so labels alone do not steer what
 //! it generates. A few seconds of real motion of the asked-for style do:
 //! the model continues them. `choreo eval generate --exemplar` measures the
 //! two side by side.

@@ -239,13 +239,13 @@ pub struct FrameManifest {
     /// asks for (the smallest of its kinds listed; none listed: the
     /// recommended sampling's). The corpora a model learns from move
     /// differently, and `choreo eval generate` scores the caps per corpus
-    /// (README, "Sampling defaults per label kind").
+    /// (docs/RESULTS.md, "Sampling defaults per label kind").
     #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub max_jump_by_kind: std::collections::BTreeMap<String, u32>,
     /// The `top_p` and `posture` a request gets when it names them not,
     /// per label kind it asks for (the first of its kinds, in name order,
     /// that lists the field; none: the recommended sampling's). `choreo
-    /// eval generate` scores them per corpus (README, "AIST++ dance: the
+    /// eval generate` scores them per corpus (docs/RESULTS.md, "AIST++ dance: the
     /// posture with the whole nucleus").
     #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub sampling_by_kind: std::collections::BTreeMap<String, KindSampling>,

@@ -4,7 +4,7 @@
 //! w > 0 adds `−w Σ_labels d(b, μ)² / (2σ²)` to every bin b's logit: the
 //! labels' Gaussian posture as a second expert beside the model, a pull of
 //! each joint toward where the asked-for labels hold it, which the frame
-//! model's own conditioning barely gives (README, "What the labels are
+//! model's own conditioning barely gives (docs/RESULTS.md, "What the labels are
 //! worth"): its clips start in the exemplar's style and drift to the
 //! corpus's average pose within seconds.
 //!

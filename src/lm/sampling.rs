@@ -38,7 +38,7 @@ pub struct Sampling {
     /// Frame model only: the frames of history the global transformer
     /// reads (0 = the model's whole window, 200 for the bundled model).
     /// A shorter history leaves the labels more of the prediction: the
-    /// clip holds its label longer, and moves less (README, "A shorter
+    /// clip holds its label longer, and moves less (docs/RESULTS.md, "A shorter
     /// history holds the label").
     pub context: u32,
 }
@@ -63,13 +63,13 @@ impl Default for Sampling {
 /// nothing): of the settings `choreo eval generate` scored on held-out
 /// Bandai (style) and AIST++-VRM (genre) clips with the bundled frame
 /// model, the one that keeps the body moving with acceleration and jerk
-/// nearest real (README, "Generation"): t 1, top-p 0.95, and the ±1-bin
+/// nearest real (docs/RESULTS.md, "Generation"): t 1, top-p 0.95, and the ±1-bin
 /// changes never cut (`keep_near` 1; without it, continuing a style
 /// exemplar froze 27 % / 25 % of 1 s windows, with it 8 % / 13 %; since
 /// session 19 the ±2-bin changes, which brought AIST++-VRM's frozen share
 /// from 15 % to 9–10 % and its acceleration from 0.57 to 0.68–0.71 of
 /// real), and no slot moving more than 48 bins a frame (`max_jump`: fewer
-/// clips that jitter away; README, "Exemplars the heads choose").
+/// clips that jitter away; docs/RESULTS.md, "Exemplars the heads choose").
 /// Greedy decoding freezes the body: the likeliest change of every slot
 /// is "none".
 pub const RECOMMENDED: Sampling = Sampling {

@@ -385,7 +385,7 @@ struct InbetweenArgs {
     /// How the loss weighs the pose's numbers: uniform (every number
     /// alike, the bundled model's) or fk (by how far each rotation moves
     /// the FK joint positions the evaluation measures; measured no better,
-    /// README "The learned in-betweener").
+    /// docs/RESULTS.md "Measured results: keyframes").
     #[arg(long, value_enum, default_value_t = choreo::train::inbetween::LossWeights::Uniform)]
     loss_weights: choreo::train::inbetween::LossWeights,
     /// Held-out spacings evaluated (frames at 60 fps).
