@@ -125,6 +125,19 @@ impl FrameNet {
         vel: &Tensor,
         prev: &Tensor,
     ) -> candle_core::Result<(Tensor, Tensor)> {
+        let x = self.local_states(ctx, inp, vel, prev)?;
+        Ok((self.params.lin(&x, "rel")?, self.params.lin(&x, "abs")?))
+    }
+
+    /// The local decoder's normed states `[N, slots, d_local]`, which the
+    /// change (`rel`) and absolute (`abs`) heads read.
+    pub fn local_states(
+        &self,
+        ctx: &Tensor,
+        inp: &Tensor,
+        vel: &Tensor,
+        prev: &Tensor,
+    ) -> candle_core::Result<Tensor> {
         let c = &self.cfg;
         let s = inp.dim(1)?;
         let ctx = self.params.lin(ctx, "l_ctx")?.unsqueeze(1)?;
@@ -138,8 +151,7 @@ impl FrameNet {
                 .params
                 .block(&x, &format!("l{l}"), c.local_heads, c.ln_eps, Some(&bias))?;
         }
-        let x = self.params.ln(&x, "l_ln", c.ln_eps)?;
-        Ok((self.params.lin(&x, "rel")?, self.params.lin(&x, "abs")?))
+        self.params.ln(&x, "l_ln", c.ln_eps)
     }
 
     /// Class logits per kind `[B, classes]` from the frames' global states
@@ -244,8 +256,12 @@ pub struct FrameBatch {
     pub prev: Tensor,
     pub rel_t: Tensor,
     pub rel_w: Tensor,
-    pub abs_t: Tensor,
-    pub abs_w: Tensor,
+    /// The slots the absolute head is scored on (a sequence's first frame,
+    /// and escapes from the change window), as rows of the flattened
+    /// `[B · T · slots]` slots, and their targets; `None` when there are
+    /// none. Only these rows' absolute logits are computed: the others
+    /// would carry zero weight (most of a step's work, at 360 bins).
+    pub abs_rows: Option<(Tensor, Tensor)>,
     pub frame_w: Tensor,
     /// Per class kind: (batch rows, class indices).
     pub classes: Vec<Option<(Tensor, Tensor)>>,
@@ -269,7 +285,7 @@ pub fn batch(cfg: &FrameConfig, exs: &[FrameExample], dev: &Device) -> Result<Fr
     let mut vel = vec![cfg.none(); n];
     let mut prev = vec![cfg.bins as u32; n];
     let (mut rel_t, mut rel_w) = (vec![0u32; n], vec![0f32; n]);
-    let (mut abs_t, mut abs_w) = (vec![0u32; n], vec![0f32; n]);
+    let (mut abs_rows, mut abs_t) = (Vec::new(), Vec::new());
     let mut frame_w = vec![0f32; b * t];
     let mut cond = vec![0f32; b * cfg.vocab_size];
     let mut cls: Vec<(Vec<u32>, Vec<u32>)> = vec![(Vec::new(), Vec::new()); cfg.classes.len()];
@@ -307,16 +323,17 @@ pub fn batch(cfg: &FrameConfig, exs: &[FrameExample], dev: &Device) -> Result<Fr
                 if k > 0 {
                     inp[base + k] = changes[k - 1];
                 }
-                abs_t[base + k] = cur[k];
-                match p1 {
-                    None => abs_w[base + k] = 1.0,
+                let scored_abs = match p1 {
+                    None => true,
                     Some(_) => {
                         rel_t[base + k] = changes[k];
                         rel_w[base + k] = 1.0;
-                        if changes[k] == cfg.esc() {
-                            abs_w[base + k] = 1.0;
-                        }
+                        changes[k] == cfg.esc()
                     }
+                };
+                if scored_abs {
+                    abs_rows.push((base + k) as u32);
+                    abs_t.push(cur[k]);
                 }
             }
         }
@@ -344,8 +361,15 @@ pub fn batch(cfg: &FrameConfig, exs: &[FrameExample], dev: &Device) -> Result<Fr
         prev: Tensor::from_vec(prev, (b * t, s), dev)?,
         rel_t: Tensor::from_vec(rel_t, n, dev)?,
         rel_w: Tensor::from_vec(rel_w, n, dev)?,
-        abs_t: Tensor::from_vec(abs_t, n, dev)?,
-        abs_w: Tensor::from_vec(abs_w, n, dev)?,
+        abs_rows: if abs_rows.is_empty() {
+            None
+        } else {
+            let k = abs_rows.len();
+            Some((
+                Tensor::from_vec(abs_rows, k, dev)?,
+                Tensor::from_vec(abs_t, k, dev)?,
+            ))
+        },
         frame_w: Tensor::from_vec(frame_w, (b, t), dev)?,
         classes,
         frames,
@@ -377,10 +401,17 @@ pub fn losses(net: &FrameNet, b: &FrameBatch) -> Result<FrameLosses> {
     let (bs, t1, dg) = h.dims3()?;
     let t = t1 - 1;
     let ctx = h.narrow(1, 0, t)?.reshape((bs * t, dg))?;
-    let (rel, abs) = net.local(&ctx, &b.inp, &b.vel, &b.prev)?;
+    let x = net.local_states(&ctx, &b.inp, &b.vel, &b.prev)?;
     let n = bs * t * c.slots;
-    let nats = (weighted_nll(&rel.reshape((n, c.rel_classes()))?, &b.rel_t, &b.rel_w)?
-        + weighted_nll(&abs.reshape((n, c.bins))?, &b.abs_t, &b.abs_w)?)?;
+    let x = x.reshape((n, c.d_local))?;
+    let rel = net.params.lin(&x, "rel")?;
+    let mut nats = weighted_nll(&rel, &b.rel_t, &b.rel_w)?;
+    if let Some((rows, targets)) = &b.abs_rows {
+        let abs = net.params.lin(&x.index_select(rows, 0)?, "abs")?;
+        let lsm = candle_nn::ops::log_softmax(&abs, D::Minus1)?;
+        let picked = lsm.gather(&targets.unsqueeze(1)?, 1)?;
+        nats = (nats - picked.sum_all()?)?;
+    }
     let mut cls: Option<Tensor> = None;
     let mut hits = Vec::new();
     if !c.classes.is_empty() && b.classes.iter().any(|x| x.is_some()) {
