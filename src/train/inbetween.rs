@@ -79,7 +79,7 @@ impl InbetweenNet {
                 .reshape((b, t, d))?;
             x = (x + self.lin(&att, &n("o"))?)?;
             let m = self.ln(&x, &n("ln2"))?;
-            let m = self.lin(&m, &n("fc1"))?.gelu_erf()?;
+            let m = self.lin(&m, &n("fc1"))?.apply(&super::fused::gelu_erf)?;
             x = (x + self.lin(&m, &n("fc2"))?)?;
         }
         self.lin(&self.ln(&x, "ln_f")?, "out")

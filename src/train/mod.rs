@@ -11,6 +11,7 @@ pub mod frame_export;
 pub mod frame_heads;
 pub mod frame_init;
 pub mod frame_run;
+pub mod fused;
 pub mod inbetween;
 pub mod model;
 pub mod parity;

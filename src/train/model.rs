@@ -1,21 +1,16 @@
 //! The GPT in candle: pre-LayerNorm blocks, GELU (erf form), learned
 //! positions (absolute or frame + slot), a language-model head and one
-//! linear class head per label kind. Built from composed tensor operations
-//! only, so every operation has a gradient and a one-to-one ONNX twin in
-//! `export.rs`.
+//! linear class head per label kind. Built from tensor operations with
+//! gradients (LayerNorm, softmax and GELU as one-pass kernels,
+//! [`super::fused`]), each with a one-to-one ONNX twin in `export.rs`.
 
 use crate::lm::ModelConfig;
-use candle_core::{DType, Device, Result, Tensor, Var, D};
+use candle_core::{DType, Device, Result, Tensor, Var};
 use std::collections::BTreeMap;
 
-/// LayerNorm over the last axis (composed, so it has gradients).
+/// LayerNorm over the last axis.
 pub fn layer_norm(x: &Tensor, w: &Tensor, b: &Tensor, eps: f64) -> Result<Tensor> {
-    let d = x.dim(D::Minus1)? as f64;
-    let mean = (x.sum_keepdim(D::Minus1)? / d)?;
-    let xc = x.broadcast_sub(&mean)?;
-    let var = (xc.sqr()?.sum_keepdim(D::Minus1)? / d)?;
-    let xn = xc.broadcast_div(&(var + eps)?.sqrt()?)?;
-    xn.broadcast_mul(w)?.broadcast_add(b)
+    super::fused::layer_norm(x, w, b, eps)
 }
 
 /// `x · w + b`.
@@ -34,9 +29,7 @@ pub fn attention_probs(
     if let Some(b) = bias {
         scores = scores.broadcast_add(b)?;
     }
-    let mx = scores.max_keepdim(D::Minus1)?;
-    let e = scores.broadcast_sub(&mx)?.exp()?;
-    e.broadcast_div(&e.sum_keepdim(D::Minus1)?)
+    super::fused::softmax_last_dim(&scores)
 }
 
 pub(crate) fn normal(shape: &[usize], std: f64, dev: &Device) -> Result<Var> {
@@ -157,7 +150,7 @@ impl Params {
             .reshape((b, t, d))?;
         let x = (x + self.lin(&att, &n("o"))?)?;
         let m = self.ln(&x, &n("ln2"), eps)?;
-        let m = self.lin(&m, &n("fc1"))?.gelu_erf()?;
+        let m = self.lin(&m, &n("fc1"))?.apply(&super::fused::gelu_erf)?;
         x + self.lin(&m, &n("fc2"))?
     }
 
@@ -346,7 +339,10 @@ impl Gpt {
             let att = self.drop(self.params.lin(&att, &n("o"))?, train)?;
             x = (x + att)?;
             let m = self.params.ln(&x, &n("ln2"), self.cfg.ln_eps)?;
-            let m = self.params.lin(&m, &n("fc1"))?.gelu_erf()?;
+            let m = self
+                .params
+                .lin(&m, &n("fc1"))?
+                .apply(&super::fused::gelu_erf)?;
             let m = self.drop(self.params.lin(&m, &n("fc2"))?, train)?;
             x = (x + m)?;
             present.push((k, v));

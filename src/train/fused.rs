@@ -1,0 +1,443 @@
+//! One-pass CPU kernels, with one-pass gradients, for the trainer's
+//! element-wise hot spots: LayerNorm, softmax over the last axis and GELU
+//! (erf form). Composed from candle's primitives each of them costs 5–8
+//! passes over its tensor forward and twice that backward, each pass a
+//! fresh allocation; on the frame model's local decoder (50,400 slots a
+//! batch) those passes, not the matrix products, were most of a step.
+//! Same arithmetic as the composed forms (checked against them, values and
+//! gradients, in this module's tests); f32, CPU; any other input is an
+//! error naming the op.
+
+use candle_core::{
+    bail, CpuStorage, CustomOp1, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor,
+};
+
+/// A contiguous f32 input's values.
+fn values<'a>(op: &str, s: &'a CpuStorage, l: &Layout) -> Result<&'a [f32]> {
+    match (s, l.contiguous_offsets()) {
+        (CpuStorage::F32(v), Some((a, b))) => Ok(&v[a..b]),
+        (CpuStorage::F32(_), None) => bail!("{op}: the input is not contiguous"),
+        _ => bail!("{op}: f32 only"),
+    }
+}
+
+/// The last axis's length of a layout (1 for a scalar).
+fn last(l: &Layout) -> usize {
+    l.dims().last().copied().unwrap_or(1).max(1)
+}
+
+/// Below this, `exp` underflows to a subnormal or zero, through libm's slow
+/// path; the term is below f32's resolution of any softmax sum anyway.
+const EXP_FLOOR: f32 = -87.0;
+
+/// Softmax over the last axis.
+struct Softmax;
+
+impl CustomOp1 for Softmax {
+    fn name(&self) -> &'static str {
+        "fused-softmax"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let x = values(self.name(), s, l)?;
+        let d = last(l);
+        let mut out = vec![0f32; x.len()];
+        for (xr, yr) in x.chunks_exact(d).zip(out.chunks_exact_mut(d)) {
+            let mx = xr.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            let mut sum = 0f32;
+            for (y, &v) in yr.iter_mut().zip(xr) {
+                let z = v - mx;
+                *y = if z < EXP_FLOOR { 0.0 } else { z.exp() };
+                sum += *y;
+            }
+            let inv = 1.0 / sum;
+            yr.iter_mut().for_each(|y| *y *= inv);
+        }
+        Ok((CpuStorage::F32(out), l.shape().clone()))
+    }
+
+    fn bwd(&self, _x: &Tensor, p: &Tensor, g: &Tensor) -> Result<Option<Tensor>> {
+        Ok(Some(
+            p.contiguous()?
+                .apply_op2_no_bwd(&g.contiguous()?, &SoftmaxBwd)?,
+        ))
+    }
+}
+
+/// `p (g − Σ g p)` per row: the softmax's input gradient.
+struct SoftmaxBwd;
+
+impl CustomOp2 for SoftmaxBwd {
+    fn name(&self) -> &'static str {
+        "fused-softmax-bwd"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (p, g) = (values(self.name(), s1, l1)?, values(self.name(), s2, l2)?);
+        let d = last(l1);
+        let mut out = vec![0f32; p.len()];
+        for ((pr, gr), o) in p
+            .chunks_exact(d)
+            .zip(g.chunks_exact(d))
+            .zip(out.chunks_exact_mut(d))
+        {
+            let dot: f32 = pr.iter().zip(gr).map(|(a, b)| a * b).sum();
+            for ((o, &a), &b) in o.iter_mut().zip(pr).zip(gr) {
+                *o = a * (b - dot);
+            }
+        }
+        Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+}
+
+/// LayerNorm over the last axis, `(x − mean) / √(var + eps) · w + b`.
+struct LayerNorm {
+    eps: f32,
+}
+
+impl LayerNorm {
+    /// A row's mean and 1/√(var + eps).
+    fn stats(&self, r: &[f32]) -> (f32, f32) {
+        let d = r.len() as f32;
+        let mean = r.iter().sum::<f32>() / d;
+        let var = r.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / d;
+        (mean, 1.0 / (var + self.eps).sqrt())
+    }
+}
+
+impl CustomOp3 for LayerNorm {
+    fn name(&self) -> &'static str {
+        "fused-layer-norm"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (x, w, b) = (
+            values(self.name(), s1, l1)?,
+            values(self.name(), s2, l2)?,
+            values(self.name(), s3, l3)?,
+        );
+        let d = last(l1);
+        if w.len() != d || b.len() != d {
+            bail!(
+                "{}: weights of {} and {} for rows of {d}",
+                self.name(),
+                w.len(),
+                b.len()
+            );
+        }
+        let mut out = vec![0f32; x.len()];
+        for (xr, yr) in x.chunks_exact(d).zip(out.chunks_exact_mut(d)) {
+            let (mean, rstd) = self.stats(xr);
+            for (j, y) in yr.iter_mut().enumerate() {
+                *y = (xr[j] - mean) * rstd * w[j] + b[j];
+            }
+        }
+        Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        w: &Tensor,
+        _b: &Tensor,
+        _y: &Tensor,
+        g: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        // One pass writes the input's gradient and, in two extra rows, the
+        // weight's and the bias's (summed over the rows).
+        let d = x.dim(candle_core::D::Minus1)?;
+        let rows = x.elem_count() / d.max(1);
+        let all = x.contiguous()?.reshape((rows, d))?.apply_op3_no_bwd(
+            &w.contiguous()?,
+            &g.contiguous()?.reshape((rows, d))?,
+            &LayerNormBwd { eps: self.eps },
+        )?;
+        let dx = all.narrow(0, 0, rows)?.reshape(x.shape())?;
+        let dw = all.narrow(0, rows, 1)?.reshape(d)?;
+        let db = all.narrow(0, rows + 1, 1)?.reshape(d)?;
+        Ok((Some(dx), Some(dw), Some(db)))
+    }
+}
+
+/// LayerNorm's gradients from `x`, `w` and the output's gradient `g`
+/// (`[rows, d]`): `[rows + 2, d]`, the input's gradient, then the weight's
+/// and the bias's.
+struct LayerNormBwd {
+    eps: f32,
+}
+
+impl CustomOp3 for LayerNormBwd {
+    fn name(&self) -> &'static str {
+        "fused-layer-norm-bwd"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (x, w, g) = (
+            values(self.name(), s1, l1)?,
+            values(self.name(), s2, l2)?,
+            values(self.name(), s3, l3)?,
+        );
+        let d = last(l1);
+        let rows = x.len() / d;
+        let norm = LayerNorm { eps: self.eps };
+        let mut out = vec![0f32; (rows + 2) * d];
+        let (dx, sums) = out.split_at_mut(rows * d);
+        let (dw, db) = sums.split_at_mut(d);
+        let mut xhat = vec![0f32; d];
+        let mut gw = vec![0f32; d];
+        for ((xr, gr), o) in x
+            .chunks_exact(d)
+            .zip(g.chunks_exact(d))
+            .zip(dx.chunks_exact_mut(d))
+        {
+            let (mean, rstd) = norm.stats(xr);
+            let (mut m_gw, mut m_gwx) = (0f32, 0f32);
+            for j in 0..d {
+                xhat[j] = (xr[j] - mean) * rstd;
+                gw[j] = gr[j] * w[j];
+                m_gw += gw[j];
+                m_gwx += gw[j] * xhat[j];
+                dw[j] += gr[j] * xhat[j];
+                db[j] += gr[j];
+            }
+            let (m_gw, m_gwx) = (m_gw / d as f32, m_gwx / d as f32);
+            for j in 0..d {
+                o[j] = rstd * (gw[j] - m_gw - xhat[j] * m_gwx);
+            }
+        }
+        Ok((CpuStorage::F32(out), Shape::from((rows + 2, d))))
+    }
+}
+
+const FRAC_1_SQRT_2: f32 = std::f32::consts::FRAC_1_SQRT_2;
+/// 1/√(2π).
+const INV_SQRT_2PI: f32 = 0.398_942_3;
+
+/// GELU, erf form: `x Φ(x) = ½ x (1 + erf(x/√2))`.
+struct Gelu;
+
+impl CustomOp1 for Gelu {
+    fn name(&self) -> &'static str {
+        "fused-gelu-erf"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let x = values(self.name(), s, l)?;
+        let out = x
+            .iter()
+            .map(|&v| (candle_core::cpu::erf::erf_f32(v * FRAC_1_SQRT_2) + 1.0) * 0.5 * v)
+            .collect();
+        Ok((CpuStorage::F32(out), l.shape().clone()))
+    }
+
+    fn bwd(&self, x: &Tensor, _y: &Tensor, g: &Tensor) -> Result<Option<Tensor>> {
+        Ok(Some(
+            x.contiguous()?
+                .apply_op2_no_bwd(&g.contiguous()?, &GeluBwd)?,
+        ))
+    }
+}
+
+/// `g (Φ(x) + x φ(x))`: GELU's input gradient.
+struct GeluBwd;
+
+impl CustomOp2 for GeluBwd {
+    fn name(&self) -> &'static str {
+        "fused-gelu-erf-bwd"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (x, g) = (values(self.name(), s1, l1)?, values(self.name(), s2, l2)?);
+        let out = x
+            .iter()
+            .zip(g)
+            .map(|(&v, &gv)| {
+                let cdf = 0.5 * (1.0 + candle_core::cpu::erf::erf_f32(v * FRAC_1_SQRT_2));
+                let pdf = INV_SQRT_2PI * (-0.5 * v * v).exp();
+                gv * (cdf + v * pdf)
+            })
+            .collect();
+        Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+}
+
+/// Softmax over the last axis (its gradient in one pass too).
+pub fn softmax_last_dim(x: &Tensor) -> Result<Tensor> {
+    x.contiguous()?.apply_op1(Softmax)
+}
+
+/// LayerNorm over the last axis with weight `w` and bias `b` (`[d]`).
+pub fn layer_norm(x: &Tensor, w: &Tensor, b: &Tensor, eps: f64) -> Result<Tensor> {
+    x.contiguous()?.apply_op3(
+        &w.contiguous()?,
+        &b.contiguous()?,
+        LayerNorm { eps: eps as f32 },
+    )
+}
+
+/// GELU in its erf form.
+pub fn gelu_erf(x: &Tensor) -> Result<Tensor> {
+    x.contiguous()?.apply_op1(Gelu)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{Device, Var, D};
+
+    /// The composed forms the fused ones replace.
+    fn softmax_ref(x: &Tensor) -> Result<Tensor> {
+        let mx = x.max_keepdim(D::Minus1)?;
+        let e = x.broadcast_sub(&mx)?.exp()?;
+        e.broadcast_div(&e.sum_keepdim(D::Minus1)?)
+    }
+    fn layer_norm_ref(x: &Tensor, w: &Tensor, b: &Tensor, eps: f64) -> Result<Tensor> {
+        let d = x.dim(D::Minus1)? as f64;
+        let xc = x.broadcast_sub(&(x.sum_keepdim(D::Minus1)? / d)?)?;
+        let var = (xc.sqr()?.sum_keepdim(D::Minus1)? / d)?;
+        xc.broadcast_div(&(var + eps)?.sqrt()?)?
+            .broadcast_mul(w)?
+            .broadcast_add(b)
+    }
+
+    fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
+        (a - b)
+            .unwrap()
+            .abs()
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .max(0)
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap()
+    }
+
+    /// Values and gradients (through a random weighting of the output, so
+    /// every output element's gradient differs) of `fused` and `composed`
+    /// on the same inputs.
+    fn check(
+        name: &str,
+        inputs: &[Var],
+        fused: &dyn Fn(&[Tensor]) -> Result<Tensor>,
+        composed: &dyn Fn(&[Tensor]) -> Result<Tensor>,
+        tol: f32,
+    ) {
+        let ts: Vec<Tensor> = inputs.iter().map(|v| v.as_tensor().clone()).collect();
+        let (yf, yc) = (fused(&ts).unwrap(), composed(&ts).unwrap());
+        assert!(
+            max_diff(&yf, &yc) < tol,
+            "{name}: values differ by {}",
+            max_diff(&yf, &yc)
+        );
+        let r = Tensor::randn(0f32, 1.0, yf.shape(), yf.device()).unwrap();
+        let gf = (yf * &r).unwrap().sum_all().unwrap().backward().unwrap();
+        let gc = (yc * &r).unwrap().sum_all().unwrap().backward().unwrap();
+        for (i, v) in inputs.iter().enumerate() {
+            let (a, b) = (
+                gf.get(v.as_tensor()).unwrap(),
+                gc.get(v.as_tensor()).unwrap(),
+            );
+            let scale = b.abs().unwrap().flatten_all().unwrap().max(0).unwrap();
+            let scale = scale.to_scalar::<f32>().unwrap().max(1.0);
+            let diff = max_diff(a, b);
+            assert!(
+                diff < tol * scale,
+                "{name}: input {i}'s gradient differs by {diff}"
+            );
+        }
+    }
+
+    #[test]
+    fn fused_ops_match_the_composed_ones_in_values_and_gradients() {
+        let dev = Device::Cpu;
+        let var = |shape: &[usize], std: f32, mean: f32| {
+            Var::from_tensor(
+                &(Tensor::randn(0f32, std, shape, &dev).unwrap() + mean as f64).unwrap(),
+            )
+            .unwrap()
+        };
+        // Softmax rows with a causal mask's −1e9 (the floor's path) and
+        // large logits.
+        let x = var(&[3, 4, 7, 7], 4.0, 0.0);
+        let mask = Tensor::from_vec(
+            (0..49)
+                .map(|i| if i % 7 > i / 7 { -1e9f32 } else { 0.0 })
+                .collect::<Vec<_>>(),
+            (1, 1, 7, 7),
+            &dev,
+        )
+        .unwrap();
+        check(
+            "softmax",
+            &[x],
+            &|t| softmax_last_dim(&t[0].broadcast_add(&mask)?),
+            &|t| softmax_ref(&t[0].broadcast_add(&mask)?),
+            1e-6,
+        );
+        // LayerNorm on rows far from zero mean, with real weights.
+        let (x, w, b) = (
+            var(&[5, 6, 48], 3.0, 2.0),
+            var(&[48], 0.5, 1.0),
+            var(&[48], 0.3, 0.0),
+        );
+        check(
+            "layer_norm",
+            &[x, w, b],
+            &|t| layer_norm(&t[0], &t[1], &t[2], 1e-5),
+            &|t| layer_norm_ref(&t[0], &t[1], &t[2], 1e-5),
+            1e-5,
+        );
+        let x = var(&[4, 257], 2.5, 0.0);
+        check(
+            "gelu",
+            &[x],
+            &|t| gelu_erf(&t[0]),
+            &|t| t[0].gelu_erf(),
+            1e-6,
+        );
+    }
+
+    #[test]
+    fn fused_ops_refuse_what_they_do_not_compute() {
+        let dev = Device::Cpu;
+        let x = Tensor::zeros((2, 3), candle_core::DType::F64, &dev).unwrap();
+        let e = softmax_last_dim(&x).unwrap_err().to_string();
+        assert!(e.contains("fused-softmax") && e.contains("f32"), "{e}");
+        let x = Tensor::zeros((2, 3), candle_core::DType::F32, &dev).unwrap();
+        let w = Tensor::ones(4, candle_core::DType::F32, &dev).unwrap();
+        let e = layer_norm(&x, &w, &w, 1e-5).unwrap_err().to_string();
+        assert!(
+            e.contains("fused-layer-norm") && e.contains("rows of 3"),
+            "{e}"
+        );
+    }
+}
