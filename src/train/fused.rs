@@ -41,17 +41,22 @@ impl CustomOp1 for Softmax {
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
         let x = values(self.name(), s, l)?;
         let d = last(l);
-        let mut out = vec![0f32; x.len()];
-        for (xr, yr) in x.chunks_exact(d).zip(out.chunks_exact_mut(d)) {
+        // Filled as it goes (no zeroing pass over a fresh buffer).
+        let mut out = Vec::with_capacity(x.len());
+        for xr in x.chunks_exact(d) {
             let mx = xr.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-            let mut sum = 0f32;
-            for (y, &v) in yr.iter_mut().zip(xr) {
+            let start = out.len();
+            out.extend(xr.iter().map(|&v| {
                 let z = v - mx;
-                *y = if z < EXP_FLOOR { 0.0 } else { z.exp() };
-                sum += *y;
-            }
-            let inv = 1.0 / sum;
-            yr.iter_mut().for_each(|y| *y *= inv);
+                if z < EXP_FLOOR {
+                    0.0
+                } else {
+                    z.exp()
+                }
+            }));
+            let row = &mut out[start..];
+            let inv = 1.0 / row.iter().sum::<f32>();
+            row.iter_mut().for_each(|y| *y *= inv);
         }
         Ok((CpuStorage::F32(out), l.shape().clone()))
     }
@@ -81,16 +86,10 @@ impl CustomOp2 for SoftmaxBwd {
     ) -> Result<(CpuStorage, Shape)> {
         let (p, g) = (values(self.name(), s1, l1)?, values(self.name(), s2, l2)?);
         let d = last(l1);
-        let mut out = vec![0f32; p.len()];
-        for ((pr, gr), o) in p
-            .chunks_exact(d)
-            .zip(g.chunks_exact(d))
-            .zip(out.chunks_exact_mut(d))
-        {
+        let mut out = Vec::with_capacity(p.len());
+        for (pr, gr) in p.chunks_exact(d).zip(g.chunks_exact(d)) {
             let dot: f32 = pr.iter().zip(gr).map(|(a, b)| a * b).sum();
-            for ((o, &a), &b) in o.iter_mut().zip(pr).zip(gr) {
-                *o = a * (b - dot);
-            }
+            out.extend(pr.iter().zip(gr).map(|(&a, &b)| a * (b - dot)));
         }
         Ok((CpuStorage::F32(out), l1.shape().clone()))
     }
@@ -139,12 +138,10 @@ impl CustomOp3 for LayerNorm {
                 b.len()
             );
         }
-        let mut out = vec![0f32; x.len()];
-        for (xr, yr) in x.chunks_exact(d).zip(out.chunks_exact_mut(d)) {
+        let mut out = Vec::with_capacity(x.len());
+        for xr in x.chunks_exact(d) {
             let (mean, rstd) = self.stats(xr);
-            for (j, y) in yr.iter_mut().enumerate() {
-                *y = (xr[j] - mean) * rstd * w[j] + b[j];
-            }
+            out.extend((0..d).map(|j| (xr[j] - mean) * rstd * w[j] + b[j]));
         }
         Ok((CpuStorage::F32(out), l1.shape().clone()))
     }
@@ -202,16 +199,11 @@ impl CustomOp3 for LayerNormBwd {
         let d = last(l1);
         let rows = x.len() / d;
         let norm = LayerNorm { eps: self.eps };
-        let mut out = vec![0f32; (rows + 2) * d];
-        let (dx, sums) = out.split_at_mut(rows * d);
-        let (dw, db) = sums.split_at_mut(d);
+        let mut out = Vec::with_capacity((rows + 2) * d);
+        let (mut dw, mut db) = (vec![0f32; d], vec![0f32; d]);
         let mut xhat = vec![0f32; d];
         let mut gw = vec![0f32; d];
-        for ((xr, gr), o) in x
-            .chunks_exact(d)
-            .zip(g.chunks_exact(d))
-            .zip(dx.chunks_exact_mut(d))
-        {
+        for (xr, gr) in x.chunks_exact(d).zip(g.chunks_exact(d)) {
             let (mean, rstd) = norm.stats(xr);
             let (mut m_gw, mut m_gwx) = (0f32, 0f32);
             for j in 0..d {
@@ -223,10 +215,10 @@ impl CustomOp3 for LayerNormBwd {
                 db[j] += gr[j];
             }
             let (m_gw, m_gwx) = (m_gw / d as f32, m_gwx / d as f32);
-            for j in 0..d {
-                o[j] = rstd * (gw[j] - m_gw - xhat[j] * m_gwx);
-            }
+            out.extend((0..d).map(|j| rstd * (gw[j] - m_gw - xhat[j] * m_gwx)));
         }
+        out.extend(dw);
+        out.extend(db);
         Ok((CpuStorage::F32(out), Shape::from((rows + 2, d))))
     }
 }
