@@ -21,6 +21,16 @@ fn values<'a>(op: &str, s: &'a CpuStorage, l: &Layout) -> Result<&'a [f32]> {
     }
 }
 
+/// Three inputs' values (see [`values`]).
+fn values3<'a>(op: &str, inputs: [(&'a CpuStorage, &Layout); 3]) -> Result<[&'a [f32]; 3]> {
+    let [(s1, l1), (s2, l2), (s3, l3)] = inputs;
+    Ok([
+        values(op, s1, l1)?,
+        values(op, s2, l2)?,
+        values(op, s3, l3)?,
+    ])
+}
+
 /// The last axis's length of a layout (1 for a scalar).
 fn last(l: &Layout) -> usize {
     l.dims().last().copied().unwrap_or(1).max(1)
@@ -30,51 +40,92 @@ fn last(l: &Layout) -> usize {
 /// path; the term is below f32's resolution of any softmax sum anyway.
 const EXP_FLOOR: f32 = -87.0;
 
-/// Softmax over the last axis.
-struct Softmax;
+/// A one-pass kernel of one input, with its one-pass gradient.
+enum Unary {
+    /// Softmax over the last axis.
+    Softmax,
+    /// GELU, erf form: `x Φ(x) = ½ x (1 + erf(x/√2))`.
+    Gelu,
+}
 
-impl CustomOp1 for Softmax {
+const FRAC_1_SQRT_2: f32 = std::f32::consts::FRAC_1_SQRT_2;
+/// 1/√(2π).
+const INV_SQRT_2PI: f32 = 0.398_942_3;
+
+/// Φ(x), through candle's own erf (so GELU's values are candle's).
+fn cdf(v: f32) -> f32 {
+    0.5 * (1.0 + candle_core::cpu::erf::erf_f32(v * FRAC_1_SQRT_2))
+}
+
+impl CustomOp1 for Unary {
     fn name(&self) -> &'static str {
-        "fused-softmax"
+        match self {
+            Unary::Softmax => "fused-softmax",
+            Unary::Gelu => "fused-gelu-erf",
+        }
     }
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
         let x = values(self.name(), s, l)?;
-        let d = last(l);
         // Filled as it goes (no zeroing pass over a fresh buffer).
         let mut out = Vec::with_capacity(x.len());
-        for xr in x.chunks_exact(d) {
-            let mx = xr.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-            let start = out.len();
-            out.extend(xr.iter().map(|&v| {
-                let z = v - mx;
-                if z < EXP_FLOOR {
-                    0.0
-                } else {
-                    z.exp()
+        match self {
+            Unary::Softmax => {
+                for xr in x.chunks_exact(last(l)) {
+                    let mx = xr.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                    let start = out.len();
+                    out.extend(xr.iter().map(|&v| {
+                        let z = v - mx;
+                        if z < EXP_FLOOR {
+                            0.0
+                        } else {
+                            z.exp()
+                        }
+                    }));
+                    let row = &mut out[start..];
+                    let inv = 1.0 / row.iter().sum::<f32>();
+                    row.iter_mut().for_each(|y| *y *= inv);
                 }
-            }));
-            let row = &mut out[start..];
-            let inv = 1.0 / row.iter().sum::<f32>();
-            row.iter_mut().for_each(|y| *y *= inv);
+            }
+            // candle's order of operations, so the values are its own.
+            Unary::Gelu => out.extend(
+                x.iter()
+                    .map(|&v| (candle_core::cpu::erf::erf_f32(v * FRAC_1_SQRT_2) + 1.0) * 0.5 * v),
+            ),
         }
         Ok((CpuStorage::F32(out), l.shape().clone()))
     }
 
-    fn bwd(&self, _x: &Tensor, p: &Tensor, g: &Tensor) -> Result<Option<Tensor>> {
-        Ok(Some(
-            p.contiguous()?
-                .apply_op2_no_bwd(&g.contiguous()?, &SoftmaxBwd)?,
-        ))
+    fn bwd(&self, x: &Tensor, y: &Tensor, g: &Tensor) -> Result<Option<Tensor>> {
+        match self {
+            // `p (g − Σ g p)` per row, from the output p.
+            Unary::Softmax => rows2(y, g, "fused-softmax-bwd", |pr, gr, out| {
+                let dot: f32 = pr.iter().zip(gr).map(|(a, b)| a * b).sum();
+                out.extend(pr.iter().zip(gr).map(|(&a, &b)| a * (b - dot)));
+            }),
+            // `g (Φ(x) + x φ(x))`, from the input.
+            Unary::Gelu => rows2(x, g, "fused-gelu-erf-bwd", |xr, gr, out| {
+                out.extend(
+                    xr.iter()
+                        .zip(gr)
+                        .map(|(&v, &gv)| gv * (cdf(v) + v * INV_SQRT_2PI * (-0.5 * v * v).exp())),
+                );
+            }),
+        }
     }
 }
 
-/// `p (g − Σ g p)` per row: the softmax's input gradient.
-struct SoftmaxBwd;
+/// A one-pass kernel over two inputs of one shape, row by row along the
+/// last axis: `row(a, b, out)` appends the row's output (the gradients'
+/// form: the forward's input or output, and the output's gradient).
+struct Rows2 {
+    name: &'static str,
+    row: fn(&[f32], &[f32], &mut Vec<f32>),
+}
 
-impl CustomOp2 for SoftmaxBwd {
+impl CustomOp2 for Rows2 {
     fn name(&self) -> &'static str {
-        "fused-softmax-bwd"
+        self.name
     }
 
     fn cpu_fwd(
@@ -84,20 +135,39 @@ impl CustomOp2 for SoftmaxBwd {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
-        let (p, g) = (values(self.name(), s1, l1)?, values(self.name(), s2, l2)?);
+        let (a, b) = (values(self.name, s1, l1)?, values(self.name, s2, l2)?);
+        if l1.dims() != l2.dims() {
+            bail!("{}: shapes {:?} and {:?}", self.name, l1.dims(), l2.dims());
+        }
         let d = last(l1);
-        let mut out = Vec::with_capacity(p.len());
-        for (pr, gr) in p.chunks_exact(d).zip(g.chunks_exact(d)) {
-            let dot: f32 = pr.iter().zip(gr).map(|(a, b)| a * b).sum();
-            out.extend(pr.iter().zip(gr).map(|(&a, &b)| a * (b - dot)));
+        let mut out = Vec::with_capacity(a.len());
+        for (ar, br) in a.chunks_exact(d).zip(b.chunks_exact(d)) {
+            (self.row)(ar, br, &mut out);
         }
         Ok((CpuStorage::F32(out), l1.shape().clone()))
     }
 }
 
-/// LayerNorm over the last axis, `(x − mean) / √(var + eps) · w + b`.
+/// [`Rows2`] on `a` and `g`, as a gradient.
+fn rows2(
+    a: &Tensor,
+    g: &Tensor,
+    name: &'static str,
+    row: fn(&[f32], &[f32], &mut Vec<f32>),
+) -> Result<Option<Tensor>> {
+    let op = Rows2 { name, row };
+    Ok(Some(
+        a.contiguous()?.apply_op2_no_bwd(&g.contiguous()?, &op)?,
+    ))
+}
+
+/// LayerNorm over the last axis, `(x − mean) / √(var + eps) · w + b`; with
+/// `grad`, its gradients instead (inputs `x`, `w` and the output's
+/// gradient `g`, `[rows, d]`; output `[rows + 2, d]`: the input's
+/// gradient, then the weight's and the bias's, summed over the rows).
 struct LayerNorm {
     eps: f32,
+    grad: bool,
 }
 
 impl LayerNorm {
@@ -108,103 +178,23 @@ impl LayerNorm {
         let var = r.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / d;
         (mean, 1.0 / (var + self.eps).sqrt())
     }
-}
 
-impl CustomOp3 for LayerNorm {
-    fn name(&self) -> &'static str {
-        "fused-layer-norm"
-    }
-
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> Result<(CpuStorage, Shape)> {
-        let (x, w, b) = (
-            values(self.name(), s1, l1)?,
-            values(self.name(), s2, l2)?,
-            values(self.name(), s3, l3)?,
-        );
-        let d = last(l1);
-        if w.len() != d || b.len() != d {
-            bail!(
-                "{}: weights of {} and {} for rows of {d}",
-                self.name(),
-                w.len(),
-                b.len()
-            );
-        }
+    fn forward(&self, x: &[f32], w: &[f32], b: &[f32], d: usize) -> Vec<f32> {
         let mut out = Vec::with_capacity(x.len());
         for xr in x.chunks_exact(d) {
             let (mean, rstd) = self.stats(xr);
             out.extend((0..d).map(|j| (xr[j] - mean) * rstd * w[j] + b[j]));
         }
-        Ok((CpuStorage::F32(out), l1.shape().clone()))
+        out
     }
 
-    fn bwd(
-        &self,
-        x: &Tensor,
-        w: &Tensor,
-        _b: &Tensor,
-        _y: &Tensor,
-        g: &Tensor,
-    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
-        // One pass writes the input's gradient and, in two extra rows, the
-        // weight's and the bias's (summed over the rows).
-        let d = x.dim(candle_core::D::Minus1)?;
-        let rows = x.elem_count() / d.max(1);
-        let all = x.contiguous()?.reshape((rows, d))?.apply_op3_no_bwd(
-            &w.contiguous()?,
-            &g.contiguous()?.reshape((rows, d))?,
-            &LayerNormBwd { eps: self.eps },
-        )?;
-        let dx = all.narrow(0, 0, rows)?.reshape(x.shape())?;
-        let dw = all.narrow(0, rows, 1)?.reshape(d)?;
-        let db = all.narrow(0, rows + 1, 1)?.reshape(d)?;
-        Ok((Some(dx), Some(dw), Some(db)))
-    }
-}
-
-/// LayerNorm's gradients from `x`, `w` and the output's gradient `g`
-/// (`[rows, d]`): `[rows + 2, d]`, the input's gradient, then the weight's
-/// and the bias's.
-struct LayerNormBwd {
-    eps: f32,
-}
-
-impl CustomOp3 for LayerNormBwd {
-    fn name(&self) -> &'static str {
-        "fused-layer-norm-bwd"
-    }
-
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> Result<(CpuStorage, Shape)> {
-        let (x, w, g) = (
-            values(self.name(), s1, l1)?,
-            values(self.name(), s2, l2)?,
-            values(self.name(), s3, l3)?,
-        );
-        let d = last(l1);
-        let rows = x.len() / d;
-        let norm = LayerNorm { eps: self.eps };
-        let mut out = Vec::with_capacity((rows + 2) * d);
+    fn backward(&self, x: &[f32], w: &[f32], g: &[f32], d: usize) -> Vec<f32> {
+        let mut out = Vec::with_capacity(x.len() + 2 * d);
         let (mut dw, mut db) = (vec![0f32; d], vec![0f32; d]);
         let mut xhat = vec![0f32; d];
         let mut gw = vec![0f32; d];
         for (xr, gr) in x.chunks_exact(d).zip(g.chunks_exact(d)) {
-            let (mean, rstd) = norm.stats(xr);
+            let (mean, rstd) = self.stats(xr);
             let (mut m_gw, mut m_gwx) = (0f32, 0f32);
             for j in 0..d {
                 xhat[j] = (xr[j] - mean) * rstd;
@@ -219,45 +209,17 @@ impl CustomOp3 for LayerNormBwd {
         }
         out.extend(dw);
         out.extend(db);
-        Ok((CpuStorage::F32(out), Shape::from((rows + 2, d))))
+        out
     }
 }
 
-const FRAC_1_SQRT_2: f32 = std::f32::consts::FRAC_1_SQRT_2;
-/// 1/√(2π).
-const INV_SQRT_2PI: f32 = 0.398_942_3;
-
-/// GELU, erf form: `x Φ(x) = ½ x (1 + erf(x/√2))`.
-struct Gelu;
-
-impl CustomOp1 for Gelu {
+impl CustomOp3 for LayerNorm {
     fn name(&self) -> &'static str {
-        "fused-gelu-erf"
-    }
-
-    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
-        let x = values(self.name(), s, l)?;
-        let out = x
-            .iter()
-            .map(|&v| (candle_core::cpu::erf::erf_f32(v * FRAC_1_SQRT_2) + 1.0) * 0.5 * v)
-            .collect();
-        Ok((CpuStorage::F32(out), l.shape().clone()))
-    }
-
-    fn bwd(&self, x: &Tensor, _y: &Tensor, g: &Tensor) -> Result<Option<Tensor>> {
-        Ok(Some(
-            x.contiguous()?
-                .apply_op2_no_bwd(&g.contiguous()?, &GeluBwd)?,
-        ))
-    }
-}
-
-/// `g (Φ(x) + x φ(x))`: GELU's input gradient.
-struct GeluBwd;
-
-impl CustomOp2 for GeluBwd {
-    fn name(&self) -> &'static str {
-        "fused-gelu-erf-bwd"
+        if self.grad {
+            "fused-layer-norm-bwd"
+        } else {
+            "fused-layer-norm"
+        }
     }
 
     fn cpu_fwd(
@@ -266,24 +228,59 @@ impl CustomOp2 for GeluBwd {
         l1: &Layout,
         s2: &CpuStorage,
         l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
-        let (x, g) = (values(self.name(), s1, l1)?, values(self.name(), s2, l2)?);
-        let out = x
-            .iter()
-            .zip(g)
-            .map(|(&v, &gv)| {
-                let cdf = 0.5 * (1.0 + candle_core::cpu::erf::erf_f32(v * FRAC_1_SQRT_2));
-                let pdf = INV_SQRT_2PI * (-0.5 * v * v).exp();
-                gv * (cdf + v * pdf)
-            })
-            .collect();
+        let [x, w, b_or_g] = values3(self.name(), [(s1, l1), (s2, l2), (s3, l3)])?;
+        let d = last(l1);
+        if self.grad {
+            let rows = x.len() / d;
+            let out = self.backward(x, w, b_or_g, d);
+            return Ok((CpuStorage::F32(out), Shape::from((rows + 2, d))));
+        }
+        if w.len() != d || b_or_g.len() != d {
+            bail!(
+                "{}: weights of {} and {} for rows of {d}",
+                self.name(),
+                w.len(),
+                b_or_g.len()
+            );
+        }
+        let out = self.forward(x, w, b_or_g, d);
         Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        w: &Tensor,
+        _b: &Tensor,
+        _y: &Tensor,
+        g: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        // One pass writes the input's gradient and, in two extra rows, the
+        // weight's and the bias's.
+        let d = x.dim(candle_core::D::Minus1)?;
+        let rows = x.elem_count() / d.max(1);
+        let grad = LayerNorm {
+            eps: self.eps,
+            grad: true,
+        };
+        let all = x.contiguous()?.reshape((rows, d))?.apply_op3_no_bwd(
+            &w.contiguous()?,
+            &g.contiguous()?.reshape((rows, d))?,
+            &grad,
+        )?;
+        let dx = all.narrow(0, 0, rows)?.reshape(x.shape())?;
+        let dw = all.narrow(0, rows, 1)?.reshape(d)?;
+        let db = all.narrow(0, rows + 1, 1)?.reshape(d)?;
+        Ok((Some(dx), Some(dw), Some(db)))
     }
 }
 
 /// Softmax over the last axis (its gradient in one pass too).
 pub fn softmax_last_dim(x: &Tensor) -> Result<Tensor> {
-    x.contiguous()?.apply_op1(Softmax)
+    x.contiguous()?.apply_op1(Unary::Softmax)
 }
 
 /// LayerNorm over the last axis with weight `w` and bias `b` (`[d]`).
@@ -291,13 +288,16 @@ pub fn layer_norm(x: &Tensor, w: &Tensor, b: &Tensor, eps: f64) -> Result<Tensor
     x.contiguous()?.apply_op3(
         &w.contiguous()?,
         &b.contiguous()?,
-        LayerNorm { eps: eps as f32 },
+        LayerNorm {
+            eps: eps as f32,
+            grad: false,
+        },
     )
 }
 
 /// GELU in its erf form.
 pub fn gelu_erf(x: &Tensor) -> Result<Tensor> {
-    x.contiguous()?.apply_op1(Gelu)
+    x.contiguous()?.apply_op1(Unary::Gelu)
 }
 
 #[cfg(test)]
