@@ -27,13 +27,15 @@ beats"):
 
 Needs numpy and scipy; about 20 seconds.
 """
-import json, os, pickle
+import os, sys
 import numpy as np
 from scipy.spatial.transform import Rotation as R, Slerp
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import smpl_fk  # noqa: E402
+
 data = os.environ.get("CHOREO_DATA", "../shared/data")
-sk = json.load(open(f"{data}/smpl/skeleton_neutral.json"))
-parents, offsets = sk["parents"], np.asarray(sk["offsets"])
+parents, offsets = smpl_fk.skeleton(data)
 mdir = f"{data}/aistpp-vrm/motions"
 files = sorted(os.listdir(mdir))
 held = set(np.random.default_rng(0).permutation(len(files))[:15])
@@ -41,21 +43,11 @@ S, BINS = 30, 12
 
 
 def load(f):
-    p = pickle.load(open(os.path.join(mdir, f), "rb"))
-    rv = p["smpl_poses"].astype(np.float64).reshape(-1, 3)
-    return R.from_rotvec(rv).as_quat().reshape(-1, 24, 4), p["smpl_trans"].astype(np.float64)
+    return smpl_fk.load(os.path.join(mdir, f))
 
 
 def fk(q, tr):
-    pos, glob = np.zeros((len(q), 24, 3)), [None] * 24
-    for j in range(24):
-        local = R.from_quat(q[:, j])
-        if parents[j] < 0:
-            glob[j], pos[:, j] = local, tr
-        else:
-            glob[j] = glob[parents[j]] * local
-            pos[:, j] = pos[:, parents[j]] + glob[parents[j]].apply(offsets[j])
-    return pos
+    return smpl_fk.fk(q, tr, parents, offsets)
 
 
 def paced(q, tr, keys, pace):
