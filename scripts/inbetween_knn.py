@@ -40,7 +40,7 @@ data = os.environ.get("CHOREO_DATA", "../shared/data")
 parents, offsets = smpl_fk.skeleton(data)
 mdir = f"{data}/aistpp-vrm/motions"
 files = sorted(os.listdir(mdir))
-held = set(np.random.default_rng(a.seed).permutation(len(files))[: a.held_out])
+held = smpl_fk.held_out(len(files), a.held_out, a.seed)
 
 
 def load(f):
@@ -97,7 +97,7 @@ for k in [int(v) for v in a.k.split(",")]:
     for i in sorted(held):
         q, tr = clips[i]
         n = len(q)
-        keys = sorted(set([0] + list(range(S, n - 1, S)) + [n - 1]))
+        keys = smpl_fk.keyframes(n, S)
         qs, ts = q.copy(), tr.copy()
         qk, tk = q.copy(), tr.copy()
         for j, (k0, k1) in enumerate(zip(keys[:-1], keys[1:])):

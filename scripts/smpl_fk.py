@@ -1,6 +1,7 @@
 """Shared by the in-betweener probes (inbetween_knn.py, inbetween_rhythm.py):
-an AIST++ pickle's rotations as quaternions, and forward kinematics on the
-neutral SMPL skeleton that choreo uses (data/smpl/skeleton_neutral.json)."""
+their held-out split and keyframes, an AIST++ pickle's rotations as
+quaternions, and forward kinematics on the neutral SMPL skeleton that choreo
+uses (data/smpl/skeleton_neutral.json)."""
 import json, pickle
 import numpy as np
 from scipy.spatial.transform import Rotation as R
@@ -29,3 +30,13 @@ def fk(q, tr, parents, offsets):
             glob[j] = glob[parents[j]] * local
             pos[:, j] = pos[:, parents[j]] + glob[parents[j]].apply(offsets[j])
     return pos
+
+
+def held_out(count, n, seed):
+    """The probes' held-out dances: n of the sorted files' indices."""
+    return set(np.random.default_rng(seed).permutation(count)[:n])
+
+
+def keyframes(frames, spacing):
+    """Every spacing-th frame, and the first and last."""
+    return sorted(set([0] + list(range(spacing, frames - 1, spacing)) + [frames - 1]))
