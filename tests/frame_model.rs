@@ -672,6 +672,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         // path (nothing real to compare travel with); the feet's row sets
         // the height from the feet.
         root_from_feet: vec![false, true],
+        pin_feet: vec![false],
     };
     let mut said = Vec::new();
     let rows = eval_generate(&model, &dir, &o, &mut |l| said.push(l)).unwrap();
@@ -815,6 +816,7 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
         candidates: vec![1],
         rank_every: 0,
         root_from_feet: vec![false],
+        pin_feet: vec![false],
     };
     let rows2 = eval_generate(&model, &dir, &with, &mut |_| {}).unwrap();
     let names: Vec<&str> = rows2.iter().map(|r| r.sampling.as_str()).collect();

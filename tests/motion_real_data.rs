@@ -459,3 +459,107 @@ fn the_feet_recover_real_travel() {
     }
     println!("{}", report.join("\n"));
 }
+
+/// Feet pinned where they touch the floor (what `feet: "pin"` does to a
+/// generated clip), on real dance: AIST++-VRM dances have no root
+/// trajectory, so a planted foot slides whenever the dancer travelled.
+/// Pinned, the ankles slide less while slowly down (the contacts of
+/// breaking footwork last 1–3 frames at 20 fps, so only part of it is
+/// held), no ankle jumps, the rest of the body is unchanged, and a real
+/// Bandai take that keeps its root (its feet do not slide) is left nearly
+/// as it was.
+#[test]
+fn pinned_feet_stop_real_sliding_and_leave_real_steps_alone() {
+    use choreo::motion::foot_pin::{pin_feet, PIN_SPEED};
+    use choreo::tokenize::vocab::Vocabulary;
+    let (Some(vrm), Some(bandai)) = (require("aistpp-vrm/motions"), require("bandai/dataset-1"))
+    else {
+        return;
+    };
+    let v = Vocabulary::new(Default::default());
+    // Skating as the eval measures it (ankles' ground speed while within
+    // 3 cm of the clip's lowest ankle height, m/s), over the frames where
+    // the unpinned ankle also moves slower than the pin's speed limit (a
+    // fast sweep along the floor is footwork, and is left alone).
+    let skate = |m: &Motion, free: &Motion| -> f64 {
+        let (p, q) = (m.positions(), free.positions());
+        let j = m.joints();
+        let (mut s, mut n) = (0.0, 0usize);
+        for name in ["Left_Ankle", "Right_Ankle"] {
+            let k = m.skeleton.index_of(name).unwrap();
+            let floor = (0..m.frames()).map(|f| q[f * j + k][1]).fold(f64::INFINITY, f64::min);
+            let speed = |p: &[Vec3], f: usize| {
+                let (a, b) = (p[(f - 1) * j + k], p[f * j + k]);
+                (b[0] - a[0]).hypot(b[2] - a[2]) * m.fps
+            };
+            for f in 1..m.frames() {
+                if q[f * j + k][1] < floor + 0.03 && speed(&q, f) < PIN_SPEED {
+                    s += speed(&p, f);
+                    n += 1;
+                }
+            }
+        }
+        s / n.max(1) as f64
+    };
+    let legs = ["Left_Hip", "Right_Hip", "Left_Knee", "Right_Knee", "Left_Ankle", "Right_Ankle"];
+    let mut report = Vec::new();
+    let mut files = files_with_ext(&vrm, &["pkl"]);
+    files.sort();
+    let (mut before, mut after) = (0.0, 0.0);
+    for p in files.iter().take(6) {
+        let src = load(p).motion;
+        let tokens = v.encode_motion(&v.prepare(&src).unwrap()).unwrap();
+        let mut m = v.decode_motion(&tokens, "vrm").unwrap();
+        for t in &mut m.trans {
+            (t[0], t[2]) = (0.0, 0.0);
+        }
+        let pinned = pin_feet(&m);
+        let (b, a) = (skate(&m, &m), skate(&pinned, &m));
+        report.push(format!("{}: skating {b:.3} -> {a:.3} m/s", p.display()));
+        before += b;
+        after += a;
+        let j = m.joints();
+        for f in 0..m.frames() {
+            for k in 0..j {
+                if !legs.contains(&m.skeleton.names[k].as_str()) {
+                    assert_eq!(m.rotations[f * j + k], pinned.rotations[f * j + k]);
+                }
+            }
+        }
+        assert_eq!(m.trans, pinned.trans);
+        // No ankle jumps: a frame's step at most 5 cm beyond the unpinned one's.
+        let (p, q) = (m.positions(), pinned.positions());
+        for name in ["Left_Ankle", "Right_Ankle"] {
+            let k = m.skeleton.index_of(name).unwrap();
+            for f in 1..m.frames() {
+                let step = |x: &[Vec3]| norm(sub(x[f * j + k], x[(f - 1) * j + k]));
+                assert!(
+                    step(&q) <= step(&p) + 0.05,
+                    "frame {f}: {name} steps {:.3} m pinned, {:.3} free; off by {:.3} then {:.3}; height {:.3} {:.3}",
+                    step(&q),
+                    step(&p),
+                    norm(sub(q[(f - 1) * j + k], p[(f - 1) * j + k])),
+                    norm(sub(q[f * j + k], p[f * j + k])),
+                    p[(f - 1) * j + k][1],
+                    p[f * j + k][1]
+                );
+            }
+        }
+    }
+    let all = report.join("\n");
+    assert!(after < 0.75 * before, "{all}");
+    // Real steps with their root: the pin barely moves the ankles.
+    for name in ["dataset-1_walk_normal_001", "dataset-1_run_normal_001"] {
+        let src = retargeted(&bandai.join(format!("{name}.bvh")));
+        let m = v.decode_motion(&v.encode_motion(&v.prepare(&src).unwrap()).unwrap(), name).unwrap();
+        let pinned = pin_feet(&m);
+        let (p, q) = (m.positions(), pinned.positions());
+        let j = m.joints();
+        let k = m.skeleton.index_of("Left_Ankle").unwrap();
+        let moved: Vec<f64> = (0..m.frames()).map(|f| norm(sub(p[f * j + k], q[f * j + k]))).collect();
+        let mean = moved.iter().sum::<f64>() / moved.len() as f64;
+        report.push(format!("{name}: left ankle moved {mean:.3} m on average, {:.3} at most", moved.iter().fold(0.0f64, |a, &b| a.max(b))));
+        assert!(mean < 0.025, "{}", report.join("\n"));
+    }
+    println!("{}", report.join("\n"));
+}

@@ -741,6 +741,53 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         worst < 1e-9,
         "stream and one-shot feet paths differ by {worst}"
     );
+    // Feet pinned where they touch the floor: the same root path and upper
+    // body as the model's own clip, other legs; one-shot and stream agree.
+    let pin_req = pb::GenerateRequest {
+        feet: "pin".into(),
+        ..free.clone()
+    };
+    let pinned = client.generate(pin_req.clone()).await.unwrap().into_inner();
+    let pm = pinned.output.unwrap();
+    assert_eq!(pm.translation, cm.translation);
+    {
+        let sk = choreo::motion::Skeleton::smpl13();
+        let j = sk.len();
+        let leg = |k: usize| {
+            ["Left_Hip", "Right_Hip", "Left_Knee", "Right_Knee", "Left_Ankle", "Right_Ankle"]
+                .contains(&sk.names[k].as_str())
+        };
+        let mut legs_moved = 0;
+        for (i, (a, b)) in pm.rotations.chunks(3).zip(cm.rotations.chunks(3)).enumerate() {
+            if leg(i % j) {
+                legs_moved += (a != b) as usize;
+            } else {
+                assert_eq!(a, b, "joint {} changed", sk.names[i % j]);
+            }
+        }
+        assert!(legs_moved > 0, "no leg was re-solved");
+    }
+    let mut st = client.generate_stream(pin_req).await.unwrap().into_inner();
+    let mut srot = Vec::new();
+    while let Some(f) = st.message().await.unwrap() {
+        srot.extend(f.rotations);
+    }
+    assert_eq!(srot.len(), pm.rotations.len());
+    let worst = srot
+        .iter()
+        .zip(&pm.rotations)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-9, "stream and one-shot pinned legs differ by {worst}");
+    let e = client
+        .generate(pb::GenerateRequest {
+            feet: "glue".into(),
+            ..free.clone()
+        })
+        .await
+        .expect_err("refused");
+    assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+    assert!(e.message().contains("feet"), "{}", e.message());
     // Refused, naming root: an unknown value; feet with a prompt that fixes
     // the root's path (pelvis is among the prompt's joints).
     for r in ["wings", "feet"] {
@@ -780,6 +827,16 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     assert_eq!(
         (status, e["error"]["field"].as_str()),
         (400, Some("exemplar")),
+        "{e}"
+    );
+    let bad = json!({"labels": {"genre": "BR"}, "frames": 4, "feet": "glue"});
+    let (status, e) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&bad)))
+            .await
+            .unwrap();
+    assert_eq!(
+        (status, e["error"]["field"].as_str()),
+        (400, Some("feet")),
         "{e}"
     );
     let m = one.output.unwrap();

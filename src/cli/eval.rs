@@ -62,6 +62,11 @@ pub enum EvalCmd {
         /// foot contact (`feet`), or `both` rows from the same clips.
         #[arg(long, default_value = "model")]
         root: String,
+        /// The legs, named as a request's `feet` names them: as the model
+        /// made them (`model`), with the feet pinned where they touch the
+        /// floor (`pin`, leg IK), or `both` rows from the same clips.
+        #[arg(long, default_value = "model")]
+        feet: String,
         /// The first clip's sampling seed (clip i of a label uses seed + i):
         /// another seed draws another set of clips, to see how far a row
         /// moves with the draw.
@@ -205,6 +210,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             candidates,
             rank_every,
             root,
+            feet,
             seed,
             json,
         } => super::eval_generate::run(
@@ -214,7 +220,7 @@ pub fn run(cmd: EvalCmd) -> Result<()> {
             (per_label, seconds, &lengths),
             (&sampling, seed),
             (&exemplar, &candidates, rank_every),
-            &root,
+            (&root, &feet),
             json,
         ),
         EvalCmd::Keyframes {

@@ -68,7 +68,7 @@ pub fn run(
     (per_label, seconds, lengths): (usize, f64, &str),
     (samplings, seed): (&[String], u64),
     (exemplar, candidates, rank_every): (&str, &[u32], usize),
-    root: &str,
+    (root, feet): (&str, &str),
     json: bool,
 ) -> Result<()> {
     if per_label == 0 {
@@ -87,6 +87,12 @@ pub fn run(
         "feet" => vec![true],
         "both" => vec![false, true],
         o => bail!("--root: '{o}' is not model, feet or both"),
+    };
+    let pin_feet = match feet {
+        "model" => vec![false],
+        "pin" => vec![true],
+        "both" => vec![false, true],
+        o => bail!("--feet: '{o}' is not model, pin or both"),
     };
     let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
     let samplings = samplings
@@ -126,6 +132,7 @@ pub fn run(
         candidates: candidates.to_vec(),
         rank_every,
         root_from_feet,
+        pin_feet,
     };
     let rows = eval_generate(&m, data, &o, &mut |line| eprintln!("{line}"))?;
     if json {

@@ -75,6 +75,10 @@ pub struct GenOptions {
     /// clips have no root trajectory the path is dropped either way, and
     /// the rows differ in the height alone.
     pub root_from_feet: Vec<bool>,
+    /// How each generated clip's legs are taken, one row per entry (times
+    /// the root's): `false` as the model made them, `true` with the feet
+    /// pinned where they touch the floor ([`crate::motion::foot_pin`]).
+    pub pin_feet: Vec<bool>,
 }
 
 /// A sampling setting as a row names it.
@@ -231,7 +235,7 @@ pub fn eval_generate(
         segs.iter()
             .filter(|s| values.contains(&s.0))
             .map(|(v, t)| {
-                clip_stats(&vocab, t, in_place, false)
+                clip_stats(&vocab, t, in_place, (false, false))
                     .map(|s| (v.clone(), s))
                     .map_err(|e| anyhow::anyhow!("{e}"))
             })
@@ -401,11 +405,15 @@ pub fn eval_generate(
             }
         }
         let secs = t0.elapsed().as_secs_f64() / made.len().max(1) as f64;
-        for &feet in &root_modes {
+        let modes: Vec<(bool, bool)> = root_modes
+            .iter()
+            .flat_map(|&r| o.pin_feet.iter().map(move |&p| (r, p)))
+            .collect();
+        for &(feet, pin) in &modes {
             let gen: Vec<(String, ClipStats)> = made
                 .iter()
                 .map(|(v, t)| {
-                    clip_stats(&vocab, t, in_place, feet)
+                    clip_stats(&vocab, t, in_place, (feet, pin))
                         .map(|s| (v.clone(), s))
                         .map_err(|e| anyhow::anyhow!("{e}"))
                 })
@@ -435,7 +443,11 @@ pub fn eval_generate(
                     } else {
                         String::new()
                     },
-                    if feet { " +root-from-feet" } else { "" }
+                    format!(
+                        "{}{}",
+                        if feet { " +root-from-feet" } else { "" },
+                        if pin { " +feet-pinned" } else { "" }
+                    )
                 ),
                 candidates,
                 rank_every: if candidates > 1 { o.rank_every } else { 0 },

@@ -302,6 +302,8 @@ pub struct FrameDecoder {
     z: f64,
     frames: usize,
     feet: Option<crate::motion::contact::FootLock>,
+    /// The legs' IK and the skeleton it solves on.
+    pin: Option<(crate::motion::foot_pin::FootPin, crate::motion::Skeleton)>,
 }
 
 impl Default for FrameDecoder {
@@ -317,6 +319,7 @@ impl FrameDecoder {
             z: 0.0,
             frames: 0,
             feet: None,
+            pin: None,
         }
     }
     /// The root's ground path from the feet instead of the velocity slots.
@@ -325,6 +328,18 @@ impl FrameDecoder {
             LmError::invalid("model", "vocabulary.skeleton", vocab.skeleton.clone())
         })?;
         self.feet = Some(crate::motion::contact::FootLock::new(&sk));
+        Ok(self)
+    }
+    /// The feet pinned where they touch the floor
+    /// ([`crate::motion::foot_pin`]), after the root's path is set.
+    pub fn pin_feet(mut self, vocab: &Vocabulary) -> Result<FrameDecoder, LmError> {
+        let sk = vocab.skeleton_def().ok_or_else(|| {
+            LmError::invalid("model", "vocabulary.skeleton", vocab.skeleton.clone())
+        })?;
+        let pin = crate::motion::foot_pin::FootPin::new(&sk, vocab.fps).ok_or_else(|| {
+            LmError::invalid("request", "feet", "pin: the model's skeleton has no legs to solve")
+        })?;
+        self.pin = Some((pin, sk));
         Ok(self)
     }
     /// One frame: (rotations per joint, root translation).
@@ -354,10 +369,12 @@ impl FrameDecoder {
         }
         self.frames += 1;
         let t = one.trans[0];
-        Ok((
-            one.frame_rotations(0).to_vec(),
-            [t[0] + self.x, t[1] + lift, t[2] + self.z],
-        ))
+        let trans = [t[0] + self.x, t[1] + lift, t[2] + self.z];
+        let mut rotations = one.frame_rotations(0).to_vec();
+        if let Some((pin, sk)) = &mut self.pin {
+            pin.step(sk, &mut rotations, trans);
+        }
+        Ok((rotations, trans))
     }
 }
 

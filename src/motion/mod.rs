@@ -3,6 +3,7 @@
 
 pub mod clip;
 pub mod contact;
+pub mod foot_pin;
 pub mod io;
 pub mod keypoints;
 pub mod labels;

@@ -72,6 +72,9 @@ pub struct GenerateParams {
     /// tokens carry it) or `feet` (rebuilt from foot contact,
     /// [`crate::motion::contact`]).
     pub root: String,
+    /// The legs: `model` or empty (as drawn) or `pin` (feet that touch the
+    /// floor stay where they touched: [`crate::motion::foot_pin`]).
+    pub feet: String,
 }
 
 /// The style exemplar a generation started from (context only, not in
@@ -98,6 +101,8 @@ pub struct GenerateJob {
     others: Vec<(Vec<u32>, Option<ExemplarUsed>)>,
     /// The root's ground path rebuilt from the feet.
     pub root_from_feet: bool,
+    /// The feet pinned where they touch the floor.
+    pub pin_feet: bool,
 }
 
 /// A job's running generation: plain (one clip, or the current
@@ -190,6 +195,25 @@ pub async fn generate_job(
             ))
         }
     };
+    let pin_feet = match p.feet.as_str() {
+        "" | "model" => false,
+        "pin" => {
+            let sk = vocab.skeleton_def();
+            if sk.as_ref().and_then(|k| crate::motion::foot_pin::FootPin::new(k, vocab.fps)).is_none() {
+                return Err(ApiError::invalid(
+                    "feet",
+                    format!("pin: the model's skeleton ({}) has no Left_Ankle / Right_Ankle legs to solve", vocab.skeleton),
+                ));
+            }
+            true
+        }
+        o => {
+            return Err(ApiError::invalid(
+                "feet",
+                format!("'{o}' is not model or pin"),
+            ))
+        }
+    };
     let forced = match p.prompt {
         Some(input) => {
             if p.prompt_joints.is_empty() {
@@ -277,6 +301,7 @@ pub async fn generate_job(
             sampling: p.sampling,
             others: Vec::new(),
             root_from_feet,
+            pin_feet,
         });
     }
     // Best of N: each candidate continues the exemplar its own seed picks
@@ -303,6 +328,7 @@ pub async fn generate_job(
         sampling: p.sampling,
         others,
         root_from_feet,
+        pin_feet,
     })
 }
 
@@ -403,6 +429,9 @@ pub async fn generate(
             if job.root_from_feet {
                 m = crate::motion::contact::lock_feet(&m);
             }
+            if job.pin_feet {
+                m = crate::motion::foot_pin::pin_feet(&m);
+            }
             m.labels = job.labels.clone();
             let secs = t0.elapsed().as_secs_f64();
             let report = GenerateReport {
@@ -473,6 +502,9 @@ pub async fn generate_stream(
     let mut dec = FrameDecoder::new();
     if job.root_from_feet {
         dec = dec.root_from_feet(job.session.vocabulary())?;
+    }
+    if job.pin_feet {
+        dec = dec.pin_feet(job.session.vocabulary())?;
     }
     let (tx, rx) = mpsc::channel(64);
     tokio::task::spawn_blocking(move || {

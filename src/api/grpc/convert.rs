@@ -161,6 +161,7 @@ pub(super) fn generate_params(
         candidates: r.candidates,
         rank_every: r.rank_every,
         root: r.root,
+        feet: r.feet,
     })
 }
 

@@ -269,6 +269,10 @@ pub struct GenerateBody {
     /// The root's ground path: `model` (the default) or `feet`.
     #[serde(default)]
     pub root: String,
+    /// The legs: `model` (the default) or `pin` (feet that touch the floor
+    /// stay there; leg IK).
+    #[serde(default)]
+    pub feet: String,
 }
 
 impl GenerateBody {
@@ -289,6 +293,7 @@ impl GenerateBody {
             candidates: self.candidates,
             rank_every: self.rank_every,
             root: self.root,
+            feet: self.feet,
         })
     }
 }

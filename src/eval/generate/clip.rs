@@ -53,7 +53,7 @@ pub(super) fn clip_stats(
     vocab: &Vocabulary,
     tokens: &[u32],
     in_place: bool,
-    root_from_feet: bool,
+    (root_from_feet, pin_feet): (bool, bool),
 ) -> Result<ClipStats, String> {
     let fl = vocab.frame_len();
     let mut m = vocab
@@ -67,6 +67,23 @@ pub(super) fn clip_stats(
             (t[0], t[2]) = (0.0, 0.0);
         }
     }
+    // Pinned feet: the legs change, so the judge and the tilt read the
+    // pinned clip's tokens, not the drawn ones.
+    let pinned;
+    let tokens = if pin_feet {
+        m = crate::motion::foot_pin::pin_feet(&m);
+        // The joint-angle slots re-encoded; the root's slots as drawn.
+        let angles = 3 * vocab.joints.len();
+        let enc = vocab.encode_motion(&m).map_err(|e| e.to_string())?;
+        let mut t = tokens.to_vec();
+        for (dst, src) in t.chunks_exact_mut(fl).zip(enc.chunks_exact(fl)) {
+            dst[..angles].copy_from_slice(&src[..angles]);
+        }
+        pinned = t;
+        &pinned[..]
+    } else {
+        tokens
+    };
     let m24 = lift24(&m);
     let p = m24.positions();
     let j = 24;
