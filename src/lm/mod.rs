@@ -32,7 +32,6 @@ pub mod model;
 pub mod posture;
 pub mod runtime;
 pub mod sampling;
-pub mod smooth;
 pub mod steer;
 
 pub use generate::{classify, forced_frames, prompt_slots, FrameDecoder, Generator};
