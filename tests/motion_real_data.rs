@@ -487,7 +487,9 @@ fn pinned_feet_stop_real_sliding_and_leave_real_steps_alone() {
         let (mut s, mut n) = (0.0, 0usize);
         for name in ["Left_Ankle", "Right_Ankle"] {
             let k = m.skeleton.index_of(name).unwrap();
-            let floor = (0..m.frames()).map(|f| q[f * j + k][1]).fold(f64::INFINITY, f64::min);
+            let floor = (0..m.frames())
+                .map(|f| q[f * j + k][1])
+                .fold(f64::INFINITY, f64::min);
             let speed = |p: &[Vec3], f: usize| {
                 let (a, b) = (p[(f - 1) * j + k], p[f * j + k]);
                 (b[0] - a[0]).hypot(b[2] - a[2]) * m.fps
@@ -501,7 +503,14 @@ fn pinned_feet_stop_real_sliding_and_leave_real_steps_alone() {
         }
         s / n.max(1) as f64
     };
-    let legs = ["Left_Hip", "Right_Hip", "Left_Knee", "Right_Knee", "Left_Ankle", "Right_Ankle"];
+    let legs = [
+        "Left_Hip",
+        "Right_Hip",
+        "Left_Knee",
+        "Right_Knee",
+        "Left_Ankle",
+        "Right_Ankle",
+    ];
     let mut report = Vec::new();
     let mut files = files_with_ext(&vrm, &["pkl"]);
     files.sort();
@@ -551,14 +560,21 @@ fn pinned_feet_stop_real_sliding_and_leave_real_steps_alone() {
     // Real steps with their root: the pin barely moves the ankles.
     for name in ["dataset-1_walk_normal_001", "dataset-1_run_normal_001"] {
         let src = retargeted(&bandai.join(format!("{name}.bvh")));
-        let m = v.decode_motion(&v.encode_motion(&v.prepare(&src).unwrap()).unwrap(), name).unwrap();
+        let m = v
+            .decode_motion(&v.encode_motion(&v.prepare(&src).unwrap()).unwrap(), name)
+            .unwrap();
         let pinned = pin_feet(&m);
         let (p, q) = (m.positions(), pinned.positions());
         let j = m.joints();
         let k = m.skeleton.index_of("Left_Ankle").unwrap();
-        let moved: Vec<f64> = (0..m.frames()).map(|f| norm(sub(p[f * j + k], q[f * j + k]))).collect();
+        let moved: Vec<f64> = (0..m.frames())
+            .map(|f| norm(sub(p[f * j + k], q[f * j + k])))
+            .collect();
         let mean = moved.iter().sum::<f64>() / moved.len() as f64;
-        report.push(format!("{name}: left ankle moved {mean:.3} m on average, {:.3} at most", moved.iter().fold(0.0f64, |a, &b| a.max(b))));
+        report.push(format!(
+            "{name}: left ankle moved {mean:.3} m on average, {:.3} at most",
+            moved.iter().fold(0.0f64, |a, &b| a.max(b))
+        ));
         assert!(mean < 0.025, "{}", report.join("\n"));
     }
     println!("{}", report.join("\n"));

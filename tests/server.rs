@@ -754,11 +754,23 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         let sk = choreo::motion::Skeleton::smpl13();
         let j = sk.len();
         let leg = |k: usize| {
-            ["Left_Hip", "Right_Hip", "Left_Knee", "Right_Knee", "Left_Ankle", "Right_Ankle"]
-                .contains(&sk.names[k].as_str())
+            [
+                "Left_Hip",
+                "Right_Hip",
+                "Left_Knee",
+                "Right_Knee",
+                "Left_Ankle",
+                "Right_Ankle",
+            ]
+            .contains(&sk.names[k].as_str())
         };
         let mut legs_moved = 0;
-        for (i, (a, b)) in pm.rotations.chunks(3).zip(cm.rotations.chunks(3)).enumerate() {
+        for (i, (a, b)) in pm
+            .rotations
+            .chunks(3)
+            .zip(cm.rotations.chunks(3))
+            .enumerate()
+        {
             if leg(i % j) {
                 legs_moved += (a != b) as usize;
             } else {
@@ -778,7 +790,10 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         .zip(&pm.rotations)
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
-    assert!(worst < 1e-9, "stream and one-shot pinned legs differ by {worst}");
+    assert!(
+        worst < 1e-9,
+        "stream and one-shot pinned legs differ by {worst}"
+    );
     let e = client
         .generate(pb::GenerateRequest {
             feet: "glue".into(),

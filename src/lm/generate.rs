@@ -337,7 +337,11 @@ impl FrameDecoder {
             LmError::invalid("model", "vocabulary.skeleton", vocab.skeleton.clone())
         })?;
         let pin = crate::motion::foot_pin::FootPin::new(&sk, vocab.fps).ok_or_else(|| {
-            LmError::invalid("request", "feet", "pin: the model's skeleton has no legs to solve")
+            LmError::invalid(
+                "request",
+                "feet",
+                "pin: the model's skeleton has no legs to solve",
+            )
         })?;
         self.pin = Some((pin, sk));
         Ok(self)

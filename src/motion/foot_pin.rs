@@ -103,9 +103,9 @@ impl FootPin {
         for li in 0..self.legs.len() {
             let leg = &mut self.legs[li];
             let free = pos[leg.ankle];
-            let speed = leg.prev.map_or(0.0, |p| {
-                (free[0] - p[0]).hypot(free[2] - p[2]) * self.fps
-            });
+            let speed = leg
+                .prev
+                .map_or(0.0, |p| (free[0] - p[0]).hypot(free[2] - p[2]) * self.fps);
             leg.prev = Some(free);
             // Down: a foot comes down low and slow; it stays down while it
             // slides along the floor (what skating is), and is up again
@@ -121,9 +121,10 @@ impl FootPin {
                 // fades is pinned where the fade has it, not where the
                 // model put it (which would jump back).
                 let start = match leg.fading.take() {
-                    Some((off, k, frames)) => {
-                        add(free, scale(off, 1.0 - (k + 1) as f64 / (frames as f64 + 1.0)))
-                    }
+                    Some((off, k, frames)) => add(
+                        free,
+                        scale(off, 1.0 - (k + 1) as f64 / (frames as f64 + 1.0)),
+                    ),
                     None => free,
                 };
                 let mut pin = leg.pin.unwrap_or(start);
@@ -273,7 +274,9 @@ mod tests {
             m.skeleton.index_of("Left_Ankle").unwrap(),
             m.skeleton.index_of("Right_Ankle").unwrap(),
         );
-        (0..m.frames()).map(|f| [p[f * j + l], p[f * j + r]]).collect()
+        (0..m.frames())
+            .map(|f| [p[f * j + l], p[f * j + r]])
+            .collect()
     }
 
     /// A body standing in place whose left hip swings slowly forward and
@@ -295,7 +298,15 @@ mod tests {
             rot[f * j + hip] = [-a, 0.0, 0.0];
             rot[f * j + knee] = [0.2 * a, 0.0, 0.0];
         }
-        let m = Motion::new("t", 20.0, sk.clone(), vec![[0.0; 3]; n], rot, Default::default()).unwrap();
+        let m = Motion::new(
+            "t",
+            20.0,
+            sk.clone(),
+            vec![[0.0; 3]; n],
+            rot,
+            Default::default(),
+        )
+        .unwrap();
         let before = ankle_paths(&m);
         let slide = before
             .iter()
@@ -331,7 +342,11 @@ mod tests {
         let mut rot = vec![[0.0; 3]; n * j];
         for f in 0..n {
             // Frames 0–9 slide slowly; from 10 the thigh lifts (knee up).
-            let a = if f < 10 { 0.004 * f as f64 } else { 0.04 + 0.12 * (f - 9) as f64 };
+            let a = if f < 10 {
+                0.004 * f as f64
+            } else {
+                0.04 + 0.12 * (f - 9) as f64
+            };
             let k = if f < 10 { 0.0 } else { 0.2 * (f - 9) as f64 };
             rot[f * j + hip] = [-a.min(1.2), 0.0, 0.0];
             rot[f * j + knee] = [k.min(1.5), 0.0, 0.0];
@@ -344,15 +359,25 @@ mod tests {
         let lifted = (1..n)
             .find(|&f| {
                 let (p, q) = (before[f][0], before[f - 1][0]);
-                p[1] > pin[1] + PIN_LIFT || (p[0] - q[0]).hypot(p[2] - q[2]) * 20.0 > 2.0 * PIN_SPEED
+                p[1] > pin[1] + PIN_LIFT
+                    || (p[0] - q[0]).hypot(p[2] - q[2]) * 20.0 > 2.0 * PIN_SPEED
             })
             .expect("the foot lifts");
         let off = norm(sub(after[lifted - 1][0], before[lifted][0]));
         let fade = RELEASE_FRAMES.max((off / RELEASE_STEP).ceil() as usize);
-        assert!(lifted + fade < n - 2, "lifted at {lifted}, fades over {fade}");
-        assert!(norm(sub(after[lifted - 1][0], before[lifted - 1][0])) > 1e-4, "pinned before");
+        assert!(
+            lifted + fade < n - 2,
+            "lifted at {lifted}, fades over {fade}"
+        );
+        assert!(
+            norm(sub(after[lifted - 1][0], before[lifted - 1][0])) > 1e-4,
+            "pinned before"
+        );
         for f in lifted + fade..n {
-            assert!(norm(sub(after[f][0], before[f][0])) < 1e-9, "frame {f} released");
+            assert!(
+                norm(sub(after[f][0], before[f][0])) < 1e-9,
+                "frame {f} released"
+            );
         }
         // No frame-to-frame jump of the corrected ankle beyond the free one's.
         for f in 1..n {

@@ -199,7 +199,11 @@ pub async fn generate_job(
         "" | "model" => false,
         "pin" => {
             let sk = vocab.skeleton_def();
-            if sk.as_ref().and_then(|k| crate::motion::foot_pin::FootPin::new(k, vocab.fps)).is_none() {
+            if sk
+                .as_ref()
+                .and_then(|k| crate::motion::foot_pin::FootPin::new(k, vocab.fps))
+                .is_none()
+            {
                 return Err(ApiError::invalid(
                     "feet",
                     format!("pin: the model's skeleton ({}) has no Left_Ankle / Right_Ankle legs to solve", vocab.skeleton),

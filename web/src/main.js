@@ -369,6 +369,8 @@ async function generatePage() {
       <span class="note">the model reads only the last 1 s it made, so the labels weigh more: the clip holds its style longer, and moves less</span></div>` : ""}
     <div class="row"><label for="g-feet">feet on the floor</label><input id="g-feet" type="checkbox">
       <span class="note">the root travels as the planted foot says, so feet do not slide (the model's own path in the air)</span></div>
+    <div class="row"><label for="g-pin">pin the feet</label><input id="g-pin" type="checkbox">
+      <span class="note">a foot that comes down stays where it touched until it lifts (hips and knees re-solved); for dancing in place, or with feet on the floor</span></div>
     <h3>Prompt joints</h3>
     <div class="row"><label for="g-prompt">from</label><select id="g-prompt"><option value="">no prompt</option>${motionOptions()}</select></div>
     ${jointBoxes(m, "g")}
@@ -396,6 +398,7 @@ async function generate() {
   }
   if ($("#g-keep")?.checked) body.sampling.context = 20;
   if ($("#g-feet").checked) body.root = "feet";
+  if ($("#g-pin").checked) body.feet = "pin";
   const promptId = $("#g-prompt").value;
   const joints = chosenJoints("g");
   let prompt = null;
