@@ -593,6 +593,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         candidates: 0,
         rank_every: 0,
         root: String::new(),
+        feet: String::new(),
     };
     let one = client.generate(greq.clone()).await.unwrap().into_inner();
     assert!(one.chosen.is_none(), "one candidate: nothing chosen");

@@ -273,17 +273,19 @@ try {
   const gen = JSON.parse(readFileSync(await dlg.path(), "utf8"));
   check(gen.rotations.length === results.generate_frames, "the downloaded motion lacks frames");
   // Steered toward the label (4 continuations every 20 frames, over the
-  // same WebSocket), the root's path from the feet: as many frames come,
-  // a round at a time.
+  // same WebSocket), the root's path from the feet and the feet pinned:
+  // as many frames come, a round at a time.
   if (firstLabel) {
     await page.check("#g-steer");
     await page.check("#g-feet");
+    await page.check("#g-pin");
     await page.click("#g-go");
     await page.waitForSelector("#g-status .ok", { timeout: 120000 });
     results.generate_steered_frames = await page.evaluate(() => window.__studio.streamed);
     check(results.generate_steered_frames >= 79, `steered: ${results.generate_steered_frames} frames of 80`);
     await page.uncheck("#g-steer");
     await page.uncheck("#g-feet");
+    await page.uncheck("#g-pin");
     // Holding the style (the bundled model has label postures): the
     // stream's start names posture 2 and max jump 12.
     check(await page.$("#g-hold"), "the bundled model has postures, the page offers no hold");
