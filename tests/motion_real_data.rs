@@ -503,14 +503,7 @@ fn pinned_feet_stop_real_sliding_and_leave_real_steps_alone() {
         }
         s / n.max(1) as f64
     };
-    let legs = [
-        "Left_Hip",
-        "Right_Hip",
-        "Left_Knee",
-        "Right_Knee",
-        "Left_Ankle",
-        "Right_Ankle",
-    ];
+    let legs = choreo::motion::foot_pin::LEG_JOINTS;
     let mut report = Vec::new();
     let mut files = files_with_ext(&vrm, &["pkl"]);
     files.sort();

@@ -15,6 +15,28 @@ use std::path::PathBuf;
 mod support;
 
 /// One HTTP/1.1 request over a fresh connection; returns (status, JSON body).
+/// A GenerateStream's frames, each read by `pick` and laid end to end,
+/// against a one-shot Generate's same field: the largest difference (the
+/// frame counts must agree).
+async fn stream_differs_by(
+    client: &mut pb::choreo_client::ChoreoClient<tonic::transport::Channel>,
+    req: pb::GenerateRequest,
+    pick: fn(pb::GeneratedFrame) -> Vec<f64>,
+    one_shot: &[f64],
+) -> f64 {
+    let mut st = client.generate_stream(req).await.unwrap().into_inner();
+    let mut streamed = Vec::new();
+    while let Some(f) = st.message().await.unwrap() {
+        streamed.extend(pick(f));
+    }
+    assert_eq!(streamed.len(), one_shot.len());
+    streamed
+        .iter()
+        .zip(one_shot)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max)
+}
+
 fn http(addr: SocketAddr, method: &str, path: &str, body: Option<&Value>) -> (u16, Value) {
     http_as(addr, method, path, body, None)
 }
@@ -727,17 +749,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         }
         assert!(moved > 0, "no frame's height moved");
     }
-    let mut st = client.generate_stream(feet_req).await.unwrap().into_inner();
-    let mut strans = Vec::new();
-    while let Some(f) = st.message().await.unwrap() {
-        strans.extend(f.translation);
-    }
-    assert_eq!(strans.len(), fm.translation.len());
-    let worst = strans
-        .iter()
-        .zip(&fm.translation)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
+    let worst = stream_differs_by(&mut client, feet_req, |f| f.translation, &fm.translation).await;
     assert!(
         worst < 1e-9,
         "stream and one-shot feet paths differ by {worst}"
@@ -754,17 +766,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     {
         let sk = choreo::motion::Skeleton::smpl13();
         let j = sk.len();
-        let leg = |k: usize| {
-            [
-                "Left_Hip",
-                "Right_Hip",
-                "Left_Knee",
-                "Right_Knee",
-                "Left_Ankle",
-                "Right_Ankle",
-            ]
-            .contains(&sk.names[k].as_str())
-        };
+        let leg = |k: usize| choreo::motion::foot_pin::LEG_JOINTS.contains(&sk.names[k].as_str());
         let mut legs_moved = 0;
         for (i, (a, b)) in pm
             .rotations
@@ -780,17 +782,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         }
         assert!(legs_moved > 0, "no leg was re-solved");
     }
-    let mut st = client.generate_stream(pin_req).await.unwrap().into_inner();
-    let mut srot = Vec::new();
-    while let Some(f) = st.message().await.unwrap() {
-        srot.extend(f.rotations);
-    }
-    assert_eq!(srot.len(), pm.rotations.len());
-    let worst = srot
-        .iter()
-        .zip(&pm.rotations)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
+    let worst = stream_differs_by(&mut client, pin_req, |f| f.rotations, &pm.rotations).await;
     assert!(
         worst < 1e-9,
         "stream and one-shot pinned legs differ by {worst}"
@@ -1178,16 +1170,17 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     for want in [
         // The prompt request, the top_p 0, keep_near, max_jump, posture and
         // context ones, the six per-kind defaults; the 400s: the bad
-        // exemplar, keep_near 65, max_jump 181, posture 11, context 201, the
-        // bad label and the over-long request; over gRPC the prompt request,
-        // best of 3, steered, root model and feet, exemplar none, top_p 0,
-        // keep_near 1, max_jump 2, posture 1.5, context 8, the style and the
-        // genre defaults; a steered stream, a feet stream, and a stream
-        // asking for 2 candidates refused.
+        // exemplar, the bad feet, keep_near 65, max_jump 181, posture 11,
+        // context 201, the bad label and the over-long request; over gRPC
+        // the prompt request, best of 3, steered, root model and feet, feet
+        // pinned, exemplar none, top_p 0, keep_near 1, max_jump 2, posture
+        // 1.5, context 8, the style and the genre defaults; a steered
+        // stream, a feet stream, a pinned stream, and a stream asking for 2
+        // candidates refused.
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 12",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 7",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 13",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 3",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 8",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 14",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 4",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
     ] {

@@ -45,6 +45,17 @@ pub const RELEASE_FRAMES: usize = 4;
 /// The most a fading correction moves the ankle in one frame (metres).
 pub const RELEASE_STEP: f64 = 0.02;
 
+/// The joints whose rotations pinning may change (SMPL names); every
+/// other joint, and the root's translation, stay as they were.
+pub const LEG_JOINTS: [&str; 6] = [
+    "Left_Hip",
+    "Right_Hip",
+    "Left_Knee",
+    "Right_Knee",
+    "Left_Ankle",
+    "Right_Ankle",
+];
+
 /// One leg: hip, knee and ankle joint indices, and its contact state.
 #[derive(Clone, Debug)]
 struct Leg {
