@@ -827,26 +827,18 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         p.output.unwrap().rotations,
         one.output.as_ref().unwrap().rotations
     );
-    let bad = json!({"labels": {"genre": "BR"}, "frames": 4, "exemplar": "always"});
-    let (status, e) =
-        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&bad)))
-            .await
-            .unwrap();
-    assert_eq!(
-        (status, e["error"]["field"].as_str()),
-        (400, Some("exemplar")),
-        "{e}"
-    );
-    let bad = json!({"labels": {"genre": "BR"}, "frames": 4, "feet": "glue"});
-    let (status, e) =
-        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&bad)))
-            .await
-            .unwrap();
-    assert_eq!(
-        (status, e["error"]["field"].as_str()),
-        (400, Some("feet")),
-        "{e}"
-    );
+    for (field, value) in [("exemplar", "always"), ("feet", "glue")] {
+        let bad = json!({"labels": {"genre": "BR"}, "frames": 4, field: value});
+        let (status, e) =
+            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&bad)))
+                .await
+                .unwrap();
+        assert_eq!(
+            (status, e["error"]["field"].as_str()),
+            (400, Some(field)),
+            "{e}"
+        );
+    }
     let m = one.output.unwrap();
     let rest_rot = flat_rotations(&out["rotations"]);
     // JSON carries decimal text, so the two agree to the last printed digit.
