@@ -176,25 +176,16 @@ impl Motion {
 
     /// Forward kinematics: joint positions in metres, `[frames][joints]`.
     pub fn positions(&self) -> Vec<Vec3> {
-        let j = self.joints();
         let mut pos = Vec::with_capacity(self.rotations.len());
-        let mut glob: Vec<Quat> = vec![IDENTITY_QUAT; j];
+        let mut glob: Vec<Quat> = vec![IDENTITY_QUAT; self.joints()];
         for f in 0..self.frames() {
-            let base = pos.len();
-            for k in 0..j {
-                let local = axis_angle_to_quat(self.rotations[f * j + k]);
-                match self.skeleton.parents[k] {
-                    None => {
-                        glob[k] = local;
-                        pos.push(add(self.skeleton.offsets[k], self.trans[f]));
-                    }
-                    Some(p) => {
-                        glob[k] = quat_mul(glob[p], local);
-                        let p_pos: Vec3 = pos[base + p];
-                        pos.push(add(p_pos, quat_rotate(glob[p], self.skeleton.offsets[k])));
-                    }
-                }
-            }
+            frame_fk(
+                &self.skeleton,
+                self.frame_rotations(f),
+                self.trans[f],
+                &mut glob,
+                &mut pos,
+            );
         }
         pos
     }
@@ -521,3 +512,30 @@ impl Motion {
 
 #[cfg(test)]
 pub(crate) mod tests;
+
+/// One frame's forward kinematics: each joint's global rotation written
+/// to `glob` (one slot per joint) and its position (metres) appended to
+/// `pos`. The step [`Motion::positions`] repeats over frames.
+pub fn frame_fk(
+    skeleton: &Skeleton,
+    rotations: &[Vec3],
+    trans: Vec3,
+    glob: &mut [Quat],
+    pos: &mut Vec<Vec3>,
+) {
+    let base = pos.len();
+    for k in 0..skeleton.len() {
+        let local = axis_angle_to_quat(rotations[k]);
+        match skeleton.parents[k] {
+            None => {
+                glob[k] = local;
+                pos.push(add(skeleton.offsets[k], trans));
+            }
+            Some(p) => {
+                glob[k] = quat_mul(glob[p], local);
+                let p_pos: Vec3 = pos[base + p];
+                pos.push(add(p_pos, quat_rotate(glob[p], skeleton.offsets[k])));
+            }
+        }
+    }
+}

@@ -24,7 +24,7 @@
 use super::clip::Motion;
 use super::rotation::{
     add, axis_angle_to_quat, cross, dot, norm, normalize, quat_conj, quat_mul, quat_rotate,
-    quat_to_axis_angle, scale, sub, Quat, Vec3,
+    quat_to_axis_angle, scale, sub, Quat, Vec3, IDENTITY_QUAT,
 };
 use super::skeleton::Skeleton;
 
@@ -175,22 +175,9 @@ impl FootPin {
 
 /// One frame's global rotations and joint positions.
 fn frame_fk(skeleton: &Skeleton, rotations: &[Vec3], trans: Vec3) -> (Vec<Quat>, Vec<Vec3>) {
-    let j = skeleton.len();
-    let mut glob: Vec<Quat> = Vec::with_capacity(j);
-    let mut pos: Vec<Vec3> = Vec::with_capacity(j);
-    for k in 0..j {
-        let local = axis_angle_to_quat(rotations[k]);
-        match skeleton.parents[k] {
-            None => {
-                glob.push(local);
-                pos.push(add(skeleton.offsets[k], trans));
-            }
-            Some(p) => {
-                glob.push(quat_mul(glob[p], local));
-                pos.push(add(pos[p], quat_rotate(glob[p], skeleton.offsets[k])));
-            }
-        }
-    }
+    let mut glob = vec![IDENTITY_QUAT; skeleton.len()];
+    let mut pos = Vec::with_capacity(skeleton.len());
+    super::clip::frame_fk(skeleton, rotations, trans, &mut glob, &mut pos);
     (glob, pos)
 }
 
@@ -253,7 +240,7 @@ fn solve_leg(
         gh2 = quat_mul(turn, gh2);
         gk2 = quat_mul(turn, gk2);
     }
-    let parent = skeleton.parents[leg.hip].map_or([1.0, 0.0, 0.0, 0.0], |p| glob[p]);
+    let parent = skeleton.parents[leg.hip].map_or(IDENTITY_QUAT, |p| glob[p]);
     rotations[leg.hip] = quat_to_axis_angle(quat_mul(quat_conj(parent), gh2));
     rotations[leg.knee] = quat_to_axis_angle(quat_mul(quat_conj(gh2), gk2));
     rotations[leg.ankle] = quat_to_axis_angle(quat_mul(quat_conj(gk2), glob[leg.ankle]));
