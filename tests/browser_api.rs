@@ -233,7 +233,8 @@ async fn websocket_generate_streams_what_rest_returns_and_stops_with_the_client(
         start_msg["start"]["sampling"], rest["sampling"],
         "{start_msg}"
     );
-    assert_eq!(rest["sampling"]["max_jump"], 24, "{rest}");
+    assert_eq!(rest["sampling"]["max_jump"], 12, "{rest}");
+    assert_eq!(rest["sampling"]["posture"], 2.0, "{rest}");
     drop(ws);
 
     // Not JSON: an error naming the body, then the close.

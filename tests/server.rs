@@ -947,21 +947,28 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     }
 
     // A request naming no max_jump, top_p or posture gets the model's
-    // default for its labels' kinds (the bundled manifest: max_jump 24 for
-    // Bandai's style and content, else the recommended 48; top_p 1 and
-    // posture 2 for AIST++'s genre, else 0.95 and none), and the answer
+    // default for its labels' kinds (the bundled manifest: posture 2 and
+    // max_jump 12 for Bandai's style, posture 2 and max_jump 24 for its
+    // content, the smaller cap for both, else the recommended 48; top_p 1
+    // and posture 2 for AIST++'s genre, else 0.95 and none), and the answer
     // says which sampling ran.
     for (labels, sampling, (want, top_p, posture)) in [
-        (json!({"style": "angry"}), json!(null), (24, 0.95, 0.0)),
+        (json!({"style": "angry"}), json!(null), (12, 0.95, 2.0)),
+        (json!({"content": "walk"}), json!(null), (24, 0.95, 2.0)),
+        (
+            json!({"content": "walk", "style": "angry"}),
+            json!(null),
+            (12, 0.95, 2.0),
+        ),
         (json!({"genre": "BR"}), json!(null), (48, 1.0, 2.0)),
         (
             json!({"style": "angry", "genre": "BR"}),
             json!({"seed": 3}),
-            (24, 1.0, 2.0),
+            (12, 1.0, 2.0),
         ),
         (
             json!({"style": "angry"}),
-            json!({"max_jump": 30}),
+            json!({"max_jump": 30, "posture": 0}),
             (30, 0.95, 0.0),
         ),
         (
@@ -998,10 +1005,11 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         );
     }
     // Over gRPC, a request with no sampling: Bandai's style gets max_jump
-    // 24 and the plain nucleus, AIST++'s genre max_jump 48, top_p 1 and
-    // posture 2.
+    // 12 and posture 2, its content max_jump 24 and posture 2, AIST++'s
+    // genre max_jump 48, top_p 1 and posture 2.
     for (kind, value, want) in [
-        ("style", "angry", (24, 0.95, -1.0)),
+        ("style", "angry", (12, 0.95, 2.0)),
+        ("content", "walk", (24, 0.95, 2.0)),
         ("genre", "BR", (48, 1.0, 2.0)),
     ] {
         let g = client
@@ -1161,17 +1169,17 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .unwrap();
     for want in [
         // The prompt request, the top_p 0, keep_near, max_jump, posture and
-        // context ones, the six per-kind defaults; the 400s: the bad
+        // context ones, the eight per-kind defaults; the 400s: the bad
         // exemplar, the bad feet, keep_near 65, max_jump 181, posture 11,
         // context 201, the bad label and the over-long request; over gRPC
         // the prompt request, best of 3, steered, root model and feet, feet
         // pinned, exemplar none, top_p 0, keep_near 1, max_jump 2, posture
-        // 1.5, context 8, the style and the genre defaults; a steered
+        // 1.5, context 8, the style, content and genre defaults; a steered
         // stream, a feet stream, a pinned stream, and a stream asking for 2
         // candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 12",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 14",
         "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 8",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 14",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 15",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 4",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",

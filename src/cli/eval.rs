@@ -36,8 +36,10 @@ pub enum EvalCmd {
         /// (a short take's features average over fewer frames).
         #[arg(long, default_value = "fixed")]
         lengths: String,
-        /// Sampling settings, T:K:P[:G[:N[:J[:W]]]] (temperature:top_k:top_p
-        /// [:guidance[:keep_near[:max_jump[:posture]]]]) or greedy; J `auto`
+        /// Sampling settings, T:K:P[:G[:N[:J[:W[:C]]]]] (temperature:top_k:top_p
+        /// [:guidance[:keep_near[:max_jump[:posture[:context]]]]]), greedy,
+        /// or `default`: what a request for the label kind naming no
+        /// sampling gets (the model's per-kind defaults filled in). J `auto`
         /// takes the model's default for the label kind, as a request naming
         /// no max_jump gets.
         #[arg(long, value_delimiter = ',', default_values_t = ["greedy", "1:0:1", "0.9:0:0.95", "0.8:0:0.9"].map(String::from).to_vec())]

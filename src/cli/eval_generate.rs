@@ -95,18 +95,26 @@ pub fn run(
         o => bail!("--feet: '{o}' is not model, pin or both"),
     };
     let m = MotionModel::load(model).with_context(|| format!("--model {}", model.display()))?;
+    let kind = [labels.to_string()];
     let samplings = samplings
         .iter()
         .map(|s| {
+            if s == "default" {
+                // What a request for this label kind naming no sampling gets.
+                let mut sm = choreo::lm::sampling::RECOMMENDED;
+                m.fill_defaults(&kind, &mut sm, Default::default());
+                return Ok(Sampling { seed, ..sm });
+            }
             // J `auto`: the model's default for the label kind.
-            let j = m.default_max_jump([&labels.to_string()]).to_string();
-            s.split(':')
+            let j = m.default_max_jump(&kind).to_string();
+            let s = s
+                .split(':')
                 .enumerate()
                 .map(|(i, p)| if i == 5 && p == "auto" { &j[..] } else { p })
                 .collect::<Vec<_>>()
-                .join(":")
+                .join(":");
+            parse_sampling(&s).map(|sm| Sampling { seed, ..sm })
         })
-        .map(|s| parse_sampling(&s).map(|sm| Sampling { seed, ..sm }))
         .collect::<Result<Vec<_>>>()?;
     let exemplar_modes = match exemplar {
         "none" => vec![false],

@@ -18,6 +18,15 @@ use crate::tokenize::vocab::Vocabulary;
 use std::path::Path;
 use std::sync::Arc;
 
+/// Which sampling fields a request named (the others take the model's
+/// per-kind defaults, [`MotionModel::fill_defaults`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Named {
+    pub max_jump: bool,
+    pub top_p: bool,
+    pub posture: bool,
+}
+
 /// A loaded motion model of either kind: immutable, shared by requests.
 #[derive(Clone)]
 pub enum MotionModel {
@@ -80,6 +89,28 @@ impl MotionModel {
         match self {
             MotionModel::Flat(s) => &s.config().cond_kinds,
             MotionModel::Frame(s) => &s.config().cond_kinds,
+        }
+    }
+
+    /// Fills in what a request for these label kinds did not name of
+    /// `max_jump`, `top_p` and `posture`: the model's defaults for those
+    /// kinds ([`Self::default_max_jump`], [`Self::kind_sampling`]). The
+    /// service and `choreo eval generate --sampling default` both go
+    /// through here, so what is measured as the default is what a request
+    /// naming no sampling gets.
+    pub fn fill_defaults<'a, I>(&self, kinds: I, s: &mut Sampling, named: Named)
+    where
+        I: IntoIterator<Item = &'a String> + Clone,
+    {
+        if !named.max_jump {
+            s.max_jump = self.default_max_jump(kinds.clone());
+        }
+        let d = self.kind_sampling(kinds);
+        if let (false, Some(p)) = (named.top_p, d.top_p) {
+            s.top_p = p;
+        }
+        if let (false, Some(w)) = (named.posture, d.posture) {
+            s.posture = w;
         }
     }
 

@@ -139,35 +139,19 @@ impl GenerateJob {
     }
 }
 
-/// Which sampling fields a request named (the others take the model's
-/// per-kind defaults, [`model_defaults`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Named {
-    pub max_jump: bool,
-    pub top_p: bool,
-    pub posture: bool,
-}
+pub use crate::lm::model::Named;
 
 /// What a request did not name of `max_jump`, `top_p` and `posture` gets
 /// the model's default for the label kinds it asks for
-/// ([`MotionModel::default_max_jump`], [`MotionModel::kind_sampling`]);
-/// generate, its streams and the duet alike.
+/// ([`MotionModel::fill_defaults`]); generate, its streams and the duet
+/// alike.
 pub(super) fn model_defaults(
     session: &MotionModel,
     labels: &Labels,
     s: &mut Sampling,
     named: Named,
 ) {
-    if !named.max_jump {
-        s.max_jump = session.default_max_jump(labels.keys());
-    }
-    let d = session.kind_sampling(labels.keys());
-    if let (false, Some(p)) = (named.top_p, d.top_p) {
-        s.top_p = p;
-    }
-    if let (false, Some(w)) = (named.posture, d.posture) {
-        s.posture = w;
-    }
+    session.fill_defaults(labels.keys(), s, named);
 }
 
 /// Validates a request and sets the generation up (cheap: no model step).

@@ -287,16 +287,21 @@ try {
     await page.uncheck("#g-feet");
     await page.uncheck("#g-pin");
     // Holding the style (the bundled model has label postures): the
-    // stream's start names posture 2 and max jump 12.
-    check(await page.$("#g-hold"), "the bundled model has postures, the page offers no hold");
-    await page.check("#g-hold");
+    // stream's start names posture 2 and max jump 12; free: posture 0.
+    check(await page.$("#g-posture"), "the bundled model has postures, the page offers no posture choice");
+    await page.selectOption("#g-posture", "hold");
     await page.click("#g-go");
     await page.waitForSelector("#g-status .ok", { timeout: 120000 });
     const held = await page.evaluate(() => window.__studio.sampling);
     check(held && held.posture === 2 && held.max_jump === 12, `held: the stream ran ${JSON.stringify(held)}`);
     results.generate_held_frames = await page.evaluate(() => window.__studio.streamed);
     check(results.generate_held_frames >= 79, `held: ${results.generate_held_frames} frames of 80`);
-    await page.uncheck("#g-hold");
+    await page.selectOption("#g-posture", "free");
+    await page.click("#g-go");
+    await page.waitForSelector("#g-status .ok", { timeout: 120000 });
+    const free = await page.evaluate(() => window.__studio.sampling);
+    check(free && free.posture === 0, `free: the stream ran ${JSON.stringify(free)}`);
+    await page.selectOption("#g-posture", "");
     // Keeping the label (the frame model reads its last 20 frames): the
     // stream's start names context 20.
     check(await page.$("#g-keep"), "the bundled frame model's page offers no keep-the-label box");

@@ -363,8 +363,9 @@ async function generatePage() {
     ${samplingFields("g")}
     <div class="row"><label for="g-steer">steer to the labels</label><input id="g-steer" type="checkbox">
       <span class="note">every 20 frames, 4 continuations; the model's class heads keep the likeliest (4× the work)</span></div>
-    ${m.postures ? `<div class="row"><label for="g-hold">hold the style</label><input id="g-hold" type="checkbox">
-      <span class="note">pull every joint and the body's tilt toward the labels' own posture, changes capped at 12° a frame (keeps the label to the end; livelier without)</span></div>` : ""}
+    ${m.postures ? `<div class="row"><label for="g-posture">posture</label><select id="g-posture">
+        <option value="">the labels' default</option><option value="hold">hold the style</option><option value="free">free</option></select>
+      <span class="note">hold: pull every joint and the body's tilt toward the labels' own posture, changes capped at 12° a frame (keeps the label to the end); free: no pull (livelier, the label fades); the default holds Bandai styles and contents and AIST++ genres</span></div>` : ""}
     ${m.kind === "motion-frame-lm" ? `<div class="row"><label for="g-keep">keep the label</label><input id="g-keep" type="checkbox">
       <span class="note">the model reads only the last 1 s it made, so the labels weigh more: the clip holds its style longer, and moves less</span></div>` : ""}
     <div class="row"><label for="g-feet">feet on the floor</label><input id="g-feet" type="checkbox">
@@ -392,9 +393,12 @@ async function generate() {
     body.candidates = 4;
     body.rank_every = 20;
   }
-  if ($("#g-hold")?.checked) {
+  const posture = $("#g-posture")?.value;
+  if (posture === "hold") {
     body.sampling.posture = 2;
     body.sampling.max_jump = 12;
+  } else if (posture === "free") {
+    body.sampling.posture = 0;
   }
   if ($("#g-keep")?.checked) body.sampling.context = 20;
   if ($("#g-feet").checked) body.root = "feet";
