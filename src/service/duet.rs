@@ -2,7 +2,7 @@
 //! out, one worker permit held for the session's life. REST's WebSocket
 //! and gRPC's `Duet` both run [`duet`].
 
-use super::generate::{model, model_defaults, StreamFrame};
+use super::generate::{model, StreamFrame};
 use super::{ApiError, Choreo};
 use crate::lm::Sampling;
 use crate::motion::{Labels, Motion};
@@ -24,7 +24,7 @@ impl DuetSession {
         (mut sampling, named): (Sampling, super::generate::Named),
     ) -> Result<DuetSession, ApiError> {
         let session = model(state)?;
-        model_defaults(&session, labels, &mut sampling, named);
+        session.fill_defaults(labels.keys(), &mut sampling, named);
         let duet = crate::lm::duet::Duet::new(session, labels, joints, sampling)?;
         let permit = state
             .workers

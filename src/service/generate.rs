@@ -54,7 +54,7 @@ pub struct GenerateParams {
     pub sampling: Sampling,
     /// Which of `max_jump`, `top_p` and `posture` the request named; the
     /// others get the model's defaults for the label kinds asked for
-    /// ([`model_defaults`]).
+    /// ([`MotionModel::fill_defaults`]).
     pub named: Named,
     /// `auto` or empty (a style exemplar of the labels seeds a generation
     /// that has labels and no seed motion), or `none`.
@@ -141,19 +141,6 @@ impl GenerateJob {
 
 pub use crate::lm::model::Named;
 
-/// What a request did not name of `max_jump`, `top_p` and `posture` gets
-/// the model's default for the label kinds it asks for
-/// ([`MotionModel::fill_defaults`]); generate, its streams and the duet
-/// alike.
-pub(super) fn model_defaults(
-    session: &MotionModel,
-    labels: &Labels,
-    s: &mut Sampling,
-    named: Named,
-) {
-    session.fill_defaults(labels.keys(), s, named);
-}
-
 /// Validates a request and sets the generation up (cheap: no model step).
 pub async fn generate_job(
     state: &Choreo,
@@ -162,7 +149,7 @@ pub async fn generate_job(
 ) -> Result<GenerateJob, ApiError> {
     let session = model(state)?;
     let vocab = session.vocabulary();
-    model_defaults(&session, &p.labels, &mut p.sampling, p.named);
+    session.fill_defaults(p.labels.keys(), &mut p.sampling, p.named);
     if p.frames > MAX_GENERATE_FRAMES {
         return Err(ApiError::invalid(
             "frames",
