@@ -234,7 +234,7 @@ async fn websocket_generate_streams_what_rest_returns_and_stops_with_the_client(
         "{start_msg}"
     );
     assert_eq!(rest["sampling"]["max_jump"], 12, "{rest}");
-    assert_eq!(rest["sampling"]["posture"], 2.0, "{rest}");
+    assert_eq!(rest["sampling"]["posture"], 1.5, "{rest}");
     drop(ws);
 
     // Not JSON: an error naming the body, then the close.

@@ -386,6 +386,7 @@ fn posture_pulls_the_joints_toward_the_labels_posture() {
         &[("happy".into(), happy.labels.clone(), toks)],
         &v,
         &["style".into()],
+        &Default::default(),
     );
     let nj = v.joints.len();
     let mut targets = Vec::new();
@@ -501,6 +502,38 @@ fn posture_pulls_the_joints_toward_the_labels_posture() {
     std::fs::write(dir.path().join(FILE), serde_json::to_string(&bad).unwrap()).unwrap();
     let e = MotionModel::load(dir.path()).err().unwrap().to_string();
     assert!(e.contains("labels.style.angry"), "{e}");
+    // Pose clusters: a cluster with no share, or with the wrong number of
+    // slots, is named too.
+    let good = choreo::lm::posture::Component {
+        weight: 1.0,
+        slots: p.labels["style"]["happy"].clone(),
+    };
+    for (weight, drop_slot, want) in [
+        (0.0, false, "components.style.happy[0]"),
+        (1.0, true, "components.style.happy[0]"),
+    ] {
+        let mut c = good.clone();
+        c.weight = weight;
+        if drop_slot {
+            c.slots.pop();
+        }
+        let mut bad = p.clone();
+        bad.components.insert(
+            "style".into(),
+            [("happy".to_string(), vec![c])].into_iter().collect(),
+        );
+        std::fs::write(dir.path().join(FILE), serde_json::to_string(&bad).unwrap()).unwrap();
+        let e = MotionModel::load(dir.path()).err().unwrap().to_string();
+        assert!(e.contains(want), "{e}");
+    }
+    // A good cluster loads.
+    let mut ok = p.clone();
+    ok.components.insert(
+        "style".into(),
+        [("happy".to_string(), vec![good])].into_iter().collect(),
+    );
+    std::fs::write(dir.path().join(FILE), serde_json::to_string(&ok).unwrap()).unwrap();
+    MotionModel::load(dir.path()).unwrap();
 }
 
 #[test]

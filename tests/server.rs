@@ -947,13 +947,13 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     }
 
     // A request naming no max_jump, top_p or posture gets the model's
-    // default for its labels' kinds (the bundled manifest: posture 2 and
+    // default for its labels' kinds (the bundled manifest: posture 1.5 and
     // max_jump 12 for Bandai's style, posture 2 and max_jump 24 for its
-    // content, the smaller cap for both, else the recommended 48; top_p 1
-    // and posture 2 for AIST++'s genre, else 0.95 and none), and the answer
-    // says which sampling ran.
+    // content, the smaller cap for both and the first kind's posture, else
+    // the recommended 48; top_p 1 and posture 2 for AIST++'s genre, else
+    // 0.95 and none), and the answer says which sampling ran.
     for (labels, sampling, (want, top_p, posture)) in [
-        (json!({"style": "angry"}), json!(null), (12, 0.95, 2.0)),
+        (json!({"style": "angry"}), json!(null), (12, 0.95, 1.5)),
         (json!({"content": "walk"}), json!(null), (24, 0.95, 2.0)),
         (
             json!({"content": "walk", "style": "angry"}),
@@ -1005,10 +1005,10 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         );
     }
     // Over gRPC, a request with no sampling: Bandai's style gets max_jump
-    // 12 and posture 2, its content max_jump 24 and posture 2, AIST++'s
+    // 12 and posture 1.5, its content max_jump 24 and posture 2, AIST++'s
     // genre max_jump 48, top_p 1 and posture 2.
     for (kind, value, want) in [
-        ("style", "angry", (12, 0.95, 2.0)),
+        ("style", "angry", (12, 0.95, 1.5)),
         ("content", "walk", (24, 0.95, 2.0)),
         ("genre", "BR", (48, 1.0, 2.0)),
     ] {

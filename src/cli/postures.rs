@@ -15,6 +15,26 @@ pub struct PosturesArgs {
     /// only its training sequences count.
     #[arg(long, required = true)]
     pub data: Vec<PathBuf>,
+    /// `KIND=K` (repeatable): fit K pose clusters per value of that label
+    /// kind, so the pull follows the cluster a clip's previous frame sits
+    /// in (a style's bow, walk and raised hand each keep their own pose)
+    /// instead of one mean pose per label. The bundled file: style=8,
+    /// content=8 (docs/RESULTS.md, "Session 32").
+    #[arg(long, value_parser = parse_clusters)]
+    pub clusters: Vec<(String, usize)>,
+}
+
+fn parse_clusters(s: &str) -> Result<(String, usize), String> {
+    let (k, n) = s
+        .split_once('=')
+        .ok_or_else(|| format!("'{s}' is not KIND=K"))?;
+    let n: usize = n
+        .parse()
+        .map_err(|_| format!("'{s}': K is not a whole number"))?;
+    if !(2..=64).contains(&n) {
+        return Err(format!("'{s}': K must be 2 to 64"));
+    }
+    Ok((k.to_string(), n))
 }
 
 pub fn run(a: PosturesArgs) -> Result<()> {
@@ -25,7 +45,16 @@ pub fn run(a: PosturesArgs) -> Result<()> {
     }
     let vocab = m.vocabulary().clone();
     let sequences = super::exemplars::training_sequences(&vocab, &a.data)?;
-    let p = Postures::fit(&sequences, &vocab, m.cond_kinds());
+    for (k, _) in &a.clusters {
+        if !m.cond_kinds().contains(k) {
+            bail!(
+                "--clusters: '{k}' is not a label kind of this model ({})",
+                m.cond_kinds().join(", ")
+            );
+        }
+    }
+    let clusters = a.clusters.iter().cloned().collect();
+    let p = Postures::fit(&sequences, &vocab, m.cond_kinds(), &clusters);
     if p.labels.is_empty() {
         bail!("--data: no training sequence carries a label the model knows");
     }

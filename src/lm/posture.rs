@@ -61,6 +61,20 @@ pub struct Postures {
     /// pull then).
     #[serde(default)]
     pub tilt: BTreeMap<String, BTreeMap<String, SlotStat>>,
+    /// kind → value → pose clusters of that label's frames (`choreo
+    /// postures --clusters KIND=K`): where a label has them, the pull
+    /// follows the cluster the previous frame sits in rather than the
+    /// label's one mean pose. Absent in files written before session 32.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub components: BTreeMap<String, BTreeMap<String, Vec<Component>>>,
+}
+
+/// One pose cluster of a label: its share of the label's frames and each
+/// slot's mean and spread within it.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Component {
+    pub weight: f64,
+    pub slots: Vec<Option<SlotStat>>,
 }
 
 /// The angle (degrees) between the vertical (+y) and the up axis of a body
@@ -97,10 +111,13 @@ fn pulled(s: usize, slots: usize) -> bool {
 impl Postures {
     /// Fits every (kind, value) of `kinds` the vocabulary knows from the
     /// sequences' frame tokens (`frame_len` a frame, separator last).
+    /// `clusters`: label kind → pose clusters to fit per value of it (a
+    /// kind not listed, or listed with fewer than 2, gets none).
     pub fn fit(
         sequences: &[(String, Labels, Vec<u32>)],
         vocab: &Vocabulary,
         kinds: &[String],
+        clusters: &BTreeMap<String, usize>,
     ) -> Postures {
         let fl = vocab.frame_len();
         let slots = fl - 1;
@@ -109,6 +126,7 @@ impl Postures {
         let mut labels = BTreeMap::new();
         let mut frames = BTreeMap::new();
         let mut tilt = BTreeMap::new();
+        let mut components = BTreeMap::new();
         for k in kinds {
             let Some(values) = vocab.labels.get(k) else {
                 continue;
@@ -149,6 +167,17 @@ impl Postures {
                     .entry(k.clone())
                     .or_insert_with(BTreeMap::new)
                     .insert(v.clone(), n);
+                let kk = clusters.get(k).copied().unwrap_or(0);
+                if kk > 1 {
+                    let fr: Vec<&[u32]> = seqs
+                        .iter()
+                        .flat_map(|t| t.chunks_exact(fl).map(|f| &f[..slots]))
+                        .collect();
+                    components
+                        .entry(k.clone())
+                        .or_insert_with(BTreeMap::new)
+                        .insert(v.clone(), cluster(&fr, kk, bins as f64, slots));
+                }
             }
         }
         Postures {
@@ -157,6 +186,7 @@ impl Postures {
             frames,
             labels,
             tilt,
+            components,
         }
     }
 
@@ -220,6 +250,43 @@ impl Postures {
                 }
             }
         }
+        for (k, vs) in &self.components {
+            for (v, cs) in vs {
+                let field = format!("components.{k}.{v}");
+                if !vocab.labels.get(k).is_some_and(|s| s.contains(v)) {
+                    return Err((field, "a label the model does not know".into()));
+                }
+                for (i, c) in cs.iter().enumerate() {
+                    let field = format!("{field}[{i}]");
+                    if !(c.weight.is_finite() && c.weight > 0.0 && c.weight <= 1.0) {
+                        return Err((field, format!("weight {} (want 0 < w ≤ 1)", c.weight)));
+                    }
+                    if c.slots.len() != self.slots {
+                        return Err((
+                            field,
+                            format!("{} slots, want {}", c.slots.len(), self.slots),
+                        ));
+                    }
+                    for (s, st) in c.slots.iter().enumerate() {
+                        if let Some(st) = st {
+                            let ok = st.spread.is_finite()
+                                && st.spread > 0.0
+                                && st.mean.is_finite()
+                                && (0.0..self.bins as f64).contains(&st.mean);
+                            if !ok {
+                                return Err((
+                                    format!("{field}.slots[{s}]"),
+                                    format!(
+                                        "mean {} spread {} (want a bin and a positive spread)",
+                                        st.mean, st.spread
+                                    ),
+                                ));
+                            }
+                        }
+                    }
+                }
+            }
+        }
         for (k, vs) in &self.tilt {
             for (v, st) in vs {
                 let field = format!("tilt.{k}.{v}");
@@ -253,8 +320,49 @@ impl Postures {
         if stats.is_empty() {
             return None;
         }
+        let offsets = self.offsets_of(&stats, weight);
+        let clustered = |k: &String, v: &String| {
+            self.components
+                .get(k)
+                .and_then(|c| c.get(v))
+                .is_some_and(|c| !c.is_empty())
+        };
+        let unclustered: Vec<&Vec<Option<SlotStat>>> = labels
+            .iter()
+            .filter(|(k, v)| !clustered(k, v))
+            .filter_map(|(k, v)| self.labels.get(k)?.get(v))
+            .collect();
+        let plain = self.offsets_of(&unclustered, weight);
+        let tilt = labels
+            .iter()
+            .filter_map(|(k, v)| self.tilt.get(k)?.get(v).cloned())
+            .collect();
+        let mixtures = labels
+            .iter()
+            .filter(|(k, v)| clustered(k, v))
+            .filter_map(|(k, v)| self.components.get(k)?.get(v))
+            .map(|cs| {
+                cs.iter()
+                    .map(|c| (c.weight.max(1e-9).ln(), self.offsets_of(&[&c.slots], 1.0)))
+                    .collect()
+            })
+            .collect();
+        Some(Pull {
+            offsets,
+            plain,
+            tilt,
+            weight,
+            angles: UniformBins::angles(self.bins),
+            mixtures,
+        })
+    }
+}
+
+impl Postures {
+    /// Per slot, every bin's `−w Σ d(b, μ)² / (2σ²)` over `stats`.
+    fn offsets_of(&self, stats: &[&Vec<Option<SlotStat>>], weight: f64) -> Vec<Vec<f32>> {
         let bins = self.bins as f64;
-        let offsets = (0..self.slots)
+        (0..self.slots)
             .map(|s| {
                 (0..self.bins)
                     .map(|b| {
@@ -271,37 +379,136 @@ impl Postures {
                     })
                     .collect()
             })
-            .collect();
-        let tilt = labels
-            .iter()
-            .filter_map(|(k, v)| self.tilt.get(k)?.get(v).cloned())
-            .collect();
-        Some(Pull {
-            offsets,
-            tilt,
-            weight,
-            angles: UniformBins::angles(self.bins),
-        })
+            .collect()
     }
+}
+
+/// k-means (farthest-point start, 15 rounds) over the pulled slots of
+/// `frames` (angles on the circle); each cluster's share and slot stats.
+fn cluster(frames: &[&[u32]], k: usize, bins: f64, slots: usize) -> Vec<Component> {
+    let w = std::f64::consts::TAU / bins;
+    let ps: Vec<usize> = (0..slots).filter(|&s| pulled(s, slots)).collect();
+    let feat = |f: &[u32]| -> Vec<f64> {
+        ps.iter()
+            .flat_map(|&s| {
+                let a = f[s] as f64 * w;
+                [a.cos(), a.sin()]
+            })
+            .collect()
+    };
+    let xs: Vec<Vec<f64>> = frames.iter().map(|f| feat(f)).collect();
+    let d2 = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>();
+    let k = k.min(xs.len()).max(1);
+    let mut cs: Vec<Vec<f64>> = vec![xs[xs.len() / 2].clone()];
+    while cs.len() < k {
+        let far = (0..xs.len())
+            .max_by(|&i, &j| {
+                let di = cs.iter().map(|c| d2(&xs[i], c)).fold(f64::MAX, f64::min);
+                let dj = cs.iter().map(|c| d2(&xs[j], c)).fold(f64::MAX, f64::min);
+                di.total_cmp(&dj)
+            })
+            .unwrap();
+        cs.push(xs[far].clone());
+    }
+    let mut assign = vec![0usize; xs.len()];
+    for _ in 0..15 {
+        for (i, x) in xs.iter().enumerate() {
+            assign[i] = (0..cs.len())
+                .min_by(|&a, &b| d2(x, &cs[a]).total_cmp(&d2(x, &cs[b])))
+                .unwrap();
+        }
+        for (c, centre) in cs.iter_mut().enumerate() {
+            let members: Vec<&Vec<f64>> = xs
+                .iter()
+                .zip(&assign)
+                .filter(|(_, &a)| a == c)
+                .map(|(x, _)| x)
+                .collect();
+            if members.is_empty() {
+                continue;
+            }
+            for (j, v) in centre.iter_mut().enumerate() {
+                *v = members.iter().map(|m| m[j]).sum::<f64>() / members.len() as f64;
+            }
+        }
+    }
+    (0..cs.len())
+        .filter_map(|c| {
+            let mine: Vec<&[u32]> = frames
+                .iter()
+                .zip(&assign)
+                .filter(|(_, &a)| a == c)
+                .map(|(f, _)| *f)
+                .collect();
+            (!mine.is_empty()).then(|| Component {
+                weight: mine.len() as f64 / frames.len() as f64,
+                slots: (0..slots)
+                    .map(|s| {
+                        pulled(s, slots).then(|| {
+                            slot_stat(mine.iter().map(|f| f[s] as f64), bins, wraps(s, slots))
+                        })
+                    })
+                    .collect(),
+            })
+        })
+        .collect()
 }
 
 /// The asked-for labels' postures as logit offsets: `slots` rows of `bins`,
 /// and their root tilts.
 #[derive(Clone, Debug)]
 pub struct Pull {
+    /// Every asked-for label's one mean pose (a clip's first frame, with
+    /// no previous frame to place it in a cluster).
     pub offsets: Vec<Vec<f32>>,
+    /// The labels without pose clusters only (added to the clusters').
+    plain: Vec<Vec<f32>>,
     tilt: Vec<SlotStat>,
     weight: f64,
     angles: UniformBins,
+    /// Per asked-for label with pose clusters: (log share, unweighted
+    /// offsets) per cluster.
+    mixtures: Vec<Vec<(f64, Vec<Vec<f32>>)>>,
 }
 
 impl Pull {
-    /// Slot `s`'s offsets: for a root rotation component (s < 3) with tilt
+    /// Slot `s`'s offsets: for a joint slot (s ≥ 3) of a label with pose
+    /// clusters and a previous frame, the clusters' offsets weighted by
+    /// their responsibility for the previous frame; for a root rotation component (s < 3) with tilt
     /// figures, every bin's `−w Σ_labels (t − μ)² / (2σ²)`, t the tilt of
     /// the axis-angle made of that bin, the components this frame has
     /// drawn (`drawn[..s]`) and the previous frame's for the rest (zero
     /// without one); otherwise the slot's fixed offsets.
     pub fn slot(&self, s: usize, drawn: &[u32], prev: Option<&[u32]>) -> Cow<'_, [f32]> {
+        if s >= 3 {
+            if let (false, Some(p)) = (self.mixtures.is_empty(), prev) {
+                // Each clustered label's clusters, weighted by how likely
+                // each makes the previous frame (its share times its
+                // Gaussian), beside the other labels' mean poses.
+                let mut out = self.plain[s].clone();
+                for mix in &self.mixtures {
+                    let ll: Vec<f64> = mix
+                        .iter()
+                        .map(|(lw, off)| {
+                            lw + off
+                                .iter()
+                                .zip(p)
+                                .map(|(o, &b)| o.get(b as usize).copied().unwrap_or(0.0) as f64)
+                                .sum::<f64>()
+                        })
+                        .collect();
+                    let m = ll.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+                    let z: f64 = ll.iter().map(|l| (l - m).exp()).sum();
+                    for ((_, off), l) in mix.iter().zip(&ll) {
+                        let r = ((l - m).exp() / z * self.weight) as f32;
+                        for (o, x) in out.iter_mut().zip(&off[s]) {
+                            *o += r * x;
+                        }
+                    }
+                }
+                return Cow::Owned(out);
+            }
+        }
         if s >= 3 || self.tilt.is_empty() {
             return Cow::Borrowed(&self.offsets[s]);
         }
@@ -394,6 +601,134 @@ mod tests {
             let want = up[1].clamp(-1.0, 1.0).acos().to_degrees();
             assert!((up_tilt_degrees(aa) - want).abs() < 1e-6, "{aa:?}");
         }
+    }
+
+    /// Postures over `slots` slots and 360 bins with one clustered label
+    /// (style `happy`: two pose clusters, slot 3 at bins 10 or 100) and one
+    /// unclustered (content `wave`: slot 4 at bin 200).
+    fn two_cluster_postures(slots: usize) -> Postures {
+        let mut frames: Vec<Vec<u32>> = Vec::new();
+        for i in 0..300u32 {
+            let mut f = vec![0u32; slots];
+            // 200 frames near bin 10, 100 near bin 100 (±2 bins).
+            f[3] = if i < 200 { 8 + i % 5 } else { 98 + i % 5 };
+            frames.push(f);
+        }
+        let refs: Vec<&[u32]> = frames.iter().map(|f| &f[..]).collect();
+        let comps = cluster(&refs, 2, 360.0, slots);
+        let stat = |mean: f64| SlotStat { mean, spread: 5.0 };
+        let mut happy = vec![None; slots];
+        happy[3] = Some(stat(40.0));
+        let mut wave = vec![None; slots];
+        wave[4] = Some(stat(200.0));
+        let labels = BTreeMap::from([
+            (
+                "style".to_string(),
+                BTreeMap::from([("happy".to_string(), happy)]),
+            ),
+            (
+                "content".to_string(),
+                BTreeMap::from([("wave".to_string(), wave)]),
+            ),
+        ]);
+        Postures {
+            bins: 360,
+            slots,
+            frames: BTreeMap::new(),
+            labels,
+            tilt: BTreeMap::new(),
+            components: BTreeMap::from([(
+                "style".to_string(),
+                BTreeMap::from([("happy".to_string(), comps)]),
+            )]),
+        }
+    }
+
+    fn peak(row: &[f32]) -> usize {
+        (0..row.len())
+            .max_by(|&a, &b| row[a].total_cmp(&row[b]))
+            .unwrap()
+    }
+
+    #[test]
+    fn pose_clusters_split_a_label_and_the_pull_follows_the_previous_frame() {
+        let slots = 8;
+        let p = two_cluster_postures(slots);
+        let cs = &p.components["style"]["happy"];
+        assert_eq!(cs.len(), 2);
+        let mut found: Vec<(f64, f64)> = cs
+            .iter()
+            .map(|c| (c.slots[3].as_ref().unwrap().mean, c.weight))
+            .collect();
+        found.sort_by(|a, b| a.0.total_cmp(&b.0));
+        assert!(
+            (found[0].0 - 10.0).abs() < 0.5 && (found[0].1 - 2.0 / 3.0).abs() < 1e-9,
+            "{found:?}"
+        );
+        assert!(
+            (found[1].0 - 100.0).abs() < 0.5 && (found[1].1 - 1.0 / 3.0).abs() < 1e-9,
+            "{found:?}"
+        );
+        // Root and root-velocity slots are not pulled, so not clustered.
+        assert!(cs
+            .iter()
+            .all(|c| c.slots[0].is_none() && c.slots[slots - 2].is_none()));
+
+        let labels: Labels = [("style".to_string(), "happy".to_string())]
+            .into_iter()
+            .collect();
+        let pull = p.pull(&labels, 1.0).unwrap();
+        let mut prev = vec![0u32; slots];
+        // Without a previous frame: the label's one mean pose (bin 40).
+        assert_eq!(peak(&pull.slot(3, &[], None)), 40);
+        // A previous frame in either cluster: that cluster's pose.
+        prev[3] = 12;
+        assert_eq!(peak(&pull.slot(3, &[], Some(&prev))), 10);
+        prev[3] = 97;
+        assert_eq!(peak(&pull.slot(3, &[], Some(&prev))), 100);
+        // Halfway, both clusters pull: the peak lies between them.
+        prev[3] = 55;
+        let mid = peak(&pull.slot(3, &[], Some(&prev)));
+        assert!((10..=100).contains(&mid), "{mid}");
+        // The weight scales the offsets.
+        let pull2 = p.pull(&labels, 2.0).unwrap();
+        prev[3] = 12;
+        let (a, b) = (
+            pull.slot(3, &[], Some(&prev)),
+            pull2.slot(3, &[], Some(&prev)),
+        );
+        assert!(
+            (b[200] - 2.0 * a[200]).abs() < 1e-3 * a[200].abs(),
+            "{} {}",
+            a[200],
+            b[200]
+        );
+
+        // An unclustered label beside it keeps its own mean pose, with or
+        // without a previous frame, and the clustered one still follows it.
+        let both: Labels = [
+            ("style".to_string(), "happy".to_string()),
+            ("content".to_string(), "wave".to_string()),
+        ]
+        .into_iter()
+        .collect();
+        let pb = p.pull(&both, 1.0).unwrap();
+        let wave: Labels = [("content".to_string(), "wave".to_string())]
+            .into_iter()
+            .collect();
+        let pw = p.pull(&wave, 1.0).unwrap();
+        assert_eq!(peak(&pw.slot(4, &[], Some(&prev))), 200);
+        for s in [3, 4] {
+            let (b, w, h) = (
+                pb.slot(s, &[], Some(&prev)),
+                pw.slot(s, &[], Some(&prev)),
+                pull.slot(s, &[], Some(&prev)),
+            );
+            for i in 0..360 {
+                assert!((b[i] - (w[i] + h[i])).abs() < 1e-4, "slot {s} bin {i}");
+            }
+        }
+        assert_eq!(peak(&pb.slot(3, &[], Some(&prev))), 10);
     }
 
     #[test]
