@@ -356,9 +356,7 @@ impl Postures {
             mixtures,
         })
     }
-}
 
-impl Postures {
     /// Per slot, every bin's `−w Σ d(b, μ)² / (2σ²)` over `stats`.
     fn offsets_of(&self, stats: &[&Vec<Option<SlotStat>>], weight: f64) -> Vec<Vec<f32>> {
         let bins = self.bins as f64;
@@ -384,7 +382,12 @@ impl Postures {
 }
 
 /// k-means (farthest-point start, 15 rounds) over the pulled slots of
-/// `frames` (angles on the circle); each cluster's share and slot stats.
+/// `frames`, each slot's bin placed on the circle (cos, sin) so angles
+/// compare the short way round (the root's height too: its 360 bins span
+/// 2.5 m, so distances only fold back past 1.25 m apart, a spread no
+/// label's heights reach);
+/// each cluster's share and slot stats (the height's linear, as
+/// [`slot_stat`] gives it).
 fn cluster(frames: &[&[u32]], k: usize, bins: f64, slots: usize) -> Vec<Component> {
     let w = std::f64::consts::TAU / bins;
     let ps: Vec<usize> = (0..slots).filter(|&s| pulled(s, slots)).collect();
