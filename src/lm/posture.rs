@@ -228,26 +228,7 @@ impl Postures {
                 if !known.is_some_and(|s| s.contains(v)) {
                     return Err((field, "a label the model does not know".into()));
                 }
-                if stats.len() != self.slots {
-                    return Err((field, format!("{} slots, want {}", stats.len(), self.slots)));
-                }
-                for (s, st) in stats.iter().enumerate() {
-                    if let Some(st) = st {
-                        let ok = st.spread.is_finite()
-                            && st.spread > 0.0
-                            && st.mean.is_finite()
-                            && (0.0..self.bins as f64).contains(&st.mean);
-                        if !ok {
-                            return Err((
-                                format!("{field}[{s}]"),
-                                format!(
-                                    "mean {} spread {} (want a bin and a positive spread)",
-                                    st.mean, st.spread
-                                ),
-                            ));
-                        }
-                    }
-                }
+                self.check_slots(&field, &field, stats)?;
             }
         }
         for (k, vs) in &self.components {
@@ -261,29 +242,7 @@ impl Postures {
                     if !(c.weight.is_finite() && c.weight > 0.0 && c.weight <= 1.0) {
                         return Err((field, format!("weight {} (want 0 < w ≤ 1)", c.weight)));
                     }
-                    if c.slots.len() != self.slots {
-                        return Err((
-                            field,
-                            format!("{} slots, want {}", c.slots.len(), self.slots),
-                        ));
-                    }
-                    for (s, st) in c.slots.iter().enumerate() {
-                        if let Some(st) = st {
-                            let ok = st.spread.is_finite()
-                                && st.spread > 0.0
-                                && st.mean.is_finite()
-                                && (0.0..self.bins as f64).contains(&st.mean);
-                            if !ok {
-                                return Err((
-                                    format!("{field}.slots[{s}]"),
-                                    format!(
-                                        "mean {} spread {} (want a bin and a positive spread)",
-                                        st.mean, st.spread
-                                    ),
-                                ));
-                            }
-                        }
-                    }
+                    self.check_slots(&field, &format!("{field}.slots"), &c.slots)?;
                 }
             }
         }
@@ -300,6 +259,41 @@ impl Postures {
                         field,
                         format!(
                             "mean {} spread {} (want 0–180 degrees and a positive spread)",
+                            st.mean, st.spread
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// One slot list (a label's or a cluster's): one entry per slot (else
+    /// an error naming `field`), each a bin and a positive spread (else
+    /// one naming `per_slot[s]`).
+    fn check_slots(
+        &self,
+        field: &str,
+        per_slot: &str,
+        stats: &[Option<SlotStat>],
+    ) -> Result<(), (String, String)> {
+        if stats.len() != self.slots {
+            return Err((
+                field.to_string(),
+                format!("{} slots, want {}", stats.len(), self.slots),
+            ));
+        }
+        for (s, st) in stats.iter().enumerate() {
+            if let Some(st) = st {
+                let ok = st.spread.is_finite()
+                    && st.spread > 0.0
+                    && st.mean.is_finite()
+                    && (0.0..self.bins as f64).contains(&st.mean);
+                if !ok {
+                    return Err((
+                        format!("{per_slot}[{s}]"),
+                        format!(
+                            "mean {} spread {} (want a bin and a positive spread)",
                             st.mean, st.spread
                         ),
                     ));
