@@ -18,7 +18,7 @@
 //! frame's for those still to come). Without it a clip can bow forward to
 //! lying and, its long context seeing itself lie, stay there.
 //!
-//! A label may also have pose clusters ([`clusters`]): then each frame is
+//! A label may also have pose clusters (`posture/clusters.rs`): then each frame is
 //! pulled toward the clusters by their responsibility for the previous
 //! frame, so a style's bow, walk and raised hand each keep their own pose.
 //!
