@@ -40,26 +40,30 @@ ex_data=(--data "$data/bandai" --data "$data/aistpp-vrm" --data "$data/aistpp" -
 $C exemplars --model "$run/frame/export" "${ex_data[@]}"
 $C exemplars --model "$run/flat/export" --seconds 0.4 "${ex_data[@]}"
 # Label postures for the frame model's posture pull (sampling.posture),
-# from the same training sequences (2 s; the flat GPT has no pull).
-$C postures --model "$run/frame/export" "${ex_data[@]}"
+# from the same training sequences, with pose clusters for Bandai's style
+# and content as the bundled model has them (seconds; the flat GPT has no
+# pull).
+$C postures --model "$run/frame/export" "${ex_data[@]}" --clusters style=8 --clusters content=8
 # 4. Streaming speed, one sitting.
 $C bench model --model "$run/frame/export" --frames 600 > "$run/frame.bench.json"
 $C bench model --model "$run/flat/export" --frames 200 > "$run/flat.bench.json"
 # 5. Generation, both models side by side (single-threaded each, so two at
 #    once): the flat GPT at t 1, top-p 0.95 with and without its exemplar
 #    (its sampler has no keep_near, max_jump or posture); the frame model
-#    with exemplars at the API's default for each corpus's label and with
-#    the posture settings (Bandai: posture 2, max_jump 12; AIST++: posture 2,
-#    top-p 1, max_jump 48), its root from the model and from the feet.
+#    with exemplars at the API's default for each corpus's label before
+#    the pull and with the bundled model's defaults (Bandai style: clustered
+#    posture 1.5, max_jump 12; AIST++ genre: posture 2, top-p 1, max_jump
+#    48). Every row of both models is also measured with the root from the
+#    feet (Bandai; the AIST++ root stays in place) and the feet pinned.
 per=${GEN_PER_LABEL:-6}
 $C eval generate --model "$run/flat/export" --data "$data/bandai" --labels style --per-label "$per" \
-    --sampling 1:0:0.95 --exemplar both --json > "$run/flat.gen.bandai.json" &
+    --sampling 1:0:0.95 --exemplar both --root both --feet both --json > "$run/flat.gen.bandai.json" &
 $C eval generate --model "$run/flat/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" \
-    --sampling 1:0:0.95 --exemplar both --json > "$run/flat.gen.vrm.json" &
+    --sampling 1:0:0.95 --exemplar both --feet both --json > "$run/flat.gen.vrm.json" &
 wait
 $C eval generate --model "$run/frame/export" --data "$data/bandai" --labels style --per-label "$per" \
-    --sampling 1:0:0.95:1:2:24,1:0:0.95:1:2:12:2 --exemplar auto --root both --json > "$run/frame.gen.bandai.json" &
+    --sampling 1:0:0.95:1:2:24,1:0:0.95:1:2:12:1.5 --exemplar auto --root both --feet both --json > "$run/frame.gen.bandai.json" &
 $C eval generate --model "$run/frame/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" \
-    --sampling 1:0:0.95:1:2:48,1:0:1:1:2:48:2 --exemplar auto --json > "$run/frame.gen.vrm.json" &
+    --sampling 1:0:0.95:1:2:48,1:0:1:1:2:48:2 --exemplar auto --feet both --json > "$run/frame.gen.vrm.json" &
 wait
 echo "tables in $run"

@@ -731,6 +731,20 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
                 .any(|m| g.feature.ends_with(m))));
         assert!(r.fid_k_gaps.windows(2).all(|w| w[0].cost >= w[1].cost));
         assert!(r.fid_k_gaps.iter().all(|g| g.cost >= g.z * g.z - 1e-12));
+        // FID_k along the real clips' first principal axis, and without
+        // it: the axis's term and the rest are each at most FID_k's
+        // order (they add up to it only where the axis is also the
+        // generated set's), and the yardstick without it is finite.
+        let ax = r.fid_k_axis.as_ref().unwrap();
+        let fk = r.fid_k.unwrap();
+        assert!(ax.real_share > 0.0 && ax.real_share <= 1.0, "{ax:?}");
+        assert!(ax.real_var > 0.0 && ax.gen_var >= 0.0 && ax.shift.is_finite());
+        assert!(ax.cost >= 0.0 && ax.fid_k_without >= 0.0 && ax.fid_k_without <= fk + 1e-9);
+        assert!(
+            ax.fid_k_real_same_n_without.is_some_and(f64::is_finite),
+            "{ax:?}"
+        );
+        assert_eq!(ax.top_features.len(), 3);
         // The bootstrap range of FID over the generated clips is ordered.
         if let Some([lo, hi]) = r.fid_k_range {
             assert!(lo.is_finite() && lo >= 0.0 && lo <= hi, "{r:?}");

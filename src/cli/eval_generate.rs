@@ -215,6 +215,22 @@ pub fn run(
         },
     );
     per_row(
+        "FID_k along the real clips' first principal axis (their activity) and without it:".into(),
+        &|r| match &r.fid_k_axis {
+            Some(a) => format!(
+                "axis {:.0} % of real variance, spread {:.2}× real, shift {:+.2} SD, cost {:.1}; \
+                 without it {:.1} (real {})",
+                100.0 * a.real_share,
+                (a.gen_var / a.real_var.max(1e-24)).sqrt(),
+                a.shift,
+                a.cost,
+                a.fid_k_without,
+                f(a.fid_k_real_same_n_without)
+            ),
+            None => "-".into(),
+        },
+    );
+    per_row(
         "cond acc per label value, generated (held-out real):".into(),
         &|r| {
             let g: Vec<String> = r

@@ -24,7 +24,8 @@
 
 use crate::features::lda::{window_features, Lda};
 use crate::keyframes::metrics::{
-    feature_gaps, fid, fid_range, fid_same_size, geometric_features, kinetic_features,
+    feature_gaps, fid, fid_range, fid_same_size, first_axis, geometric_features, kinetic_features,
+    same_size_by,
 };
 use crate::lm::model::MotionModel;
 use crate::lm::Sampling;
@@ -41,7 +42,7 @@ mod clip;
 mod row;
 use clip::{clip_stats, diversity, ClipStats};
 use row::{kinetic_name, GAPS_SHOWN};
-pub use row::{FeatureGap, GenRow, LabelAcc};
+pub use row::{FeatureGap, GenRow, KineticAxis, LabelAcc};
 
 /// How far past the real frames' floor band a lowest joint may go before
 /// the frame counts as sunk or floating (metres): the real band's lower
@@ -339,6 +340,9 @@ pub fn eval_generate(
         fid_same_size(&rk, &tk, n_gen),
         fid_same_size(&rg, &tg, n_gen),
     );
+    let fid_k_real_same_n_without = same_size_by(&rk, &tk, n_gen, |r, p| {
+        first_axis(r, p).map(|a| a.fid_without)
+    });
     let runs: Vec<(&Sampling, bool, u32)> = o
         .samplings
         .iter()
@@ -468,6 +472,20 @@ pub fn eval_generate(
                         cost: g.cost,
                     })
                     .collect(),
+                fid_k_axis: first_axis(&rk, &gk).map(|a| {
+                    let mut by: Vec<usize> = (0..a.loadings.len()).collect();
+                    by.sort_by(|&i, &k| a.loadings[k].total_cmp(&a.loadings[i]));
+                    KineticAxis {
+                        real_share: a.real_share,
+                        real_var: a.real_var,
+                        gen_var: a.gen_var,
+                        shift: a.shift,
+                        cost: a.cost,
+                        fid_k_without: a.fid_without,
+                        fid_k_real_same_n_without,
+                        top_features: by.into_iter().take(3).map(kinetic_name).collect(),
+                    }
+                }),
                 fid_k_range: fid_range(&rk, &gk),
                 fid_g_range: fid_range(&rg, &gg),
                 accel_ratio: mean(gen.iter().map(|r| r.1.accel)) / real_accel.max(1e-12),

@@ -446,6 +446,60 @@ mod tests {
     }
 
     #[test]
+    fn the_first_axis_is_the_shared_factor_and_carries_its_share_of_fid() {
+        use rand::{Rng, SeedableRng};
+        // Features 0 and 1 share a strong factor f; feature 2 is noise.
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let mut noise = || rng.gen::<f64>() - 0.5;
+        let rows: Vec<(f64, [f64; 3])> = (0..400)
+            .map(|_| (4.0 * noise(), [noise(), noise(), noise()]))
+            .collect();
+        let make = |scale: f64| -> Vec<Vec<f64>> {
+            rows.iter()
+                .map(|(f, e)| vec![scale * f + 0.3 * e[0], scale * f + 0.3 * e[1], e[2]])
+                .collect()
+        };
+        let (real, same, calm) = (make(1.0), make(1.0), make(0.5));
+        let a = first_axis(&real, &same).unwrap();
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        assert!(
+            (a.loadings[0] - h).abs() < 0.01 && (a.loadings[1] - h).abs() < 0.01,
+            "{a:?}"
+        );
+        assert!(a.loadings[2].abs() < 0.05, "{a:?}");
+        // Two standardised features almost one: the axis holds ~2 of 3.
+        assert!((a.real_share - 2.0 / 3.0).abs() < 0.03, "{a:?}");
+        assert!(
+            a.cost < 1e-9 && a.fid_without < 1e-9 && a.shift.abs() < 1e-9,
+            "{a:?}"
+        );
+        assert!((a.gen_var - a.real_var).abs() < 1e-9);
+        // The factor halved: a quarter of the variance along the axis,
+        // the FID is almost all the axis's, and little is left without it.
+        let c = first_axis(&real, &calm).unwrap();
+        assert!((c.gen_var / c.real_var - 0.25).abs() < 0.02, "{c:?}");
+        let whole = fid(&real, &calm).unwrap();
+        // (f's sample mean is not exactly 0, so halving it moves the mean
+        // a little.)
+        let expect = c.shift.powi(2) * c.real_var + (c.real_var.sqrt() - c.gen_var.sqrt()).powi(2);
+        assert!(
+            (c.cost - expect).abs() < 1e-9 && c.shift.abs() < 0.01,
+            "{c:?}"
+        );
+        assert!(c.fid_without < 0.02 * whole, "{c:?} {whole}");
+        assert!(
+            (c.cost + c.fid_without - whole).abs() < 0.05 * whole,
+            "{c:?} {whole}"
+        );
+        // The same-size yardstick takes any distance.
+        let by = same_size_by(&real, &same, 50, |r, p| {
+            first_axis(r, p).map(|a| a.fid_without)
+        });
+        assert!(by.is_some_and(|x| x >= 0.0));
+        assert!(first_axis(&real[..1], &same).is_none());
+    }
+
+    #[test]
     fn beat_alignment_by_hand() {
         let (m2k, k2m) = beat_alignment(&[0, 30, 60], &[0, 33], 3.0).unwrap();
         // Music 0 → 0 (1), 30 → 33 (e^{-0.5}), 60 → 33 (e^{-40.5}).

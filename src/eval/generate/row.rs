@@ -31,6 +31,10 @@ pub struct GenRow {
     /// held-out real ones (mean shift and spread ratio in real standard
     /// deviations; ranked by z² + (spread − 1)²): what drives FID_k.
     pub fid_k_gaps: Vec<FeatureGap>,
+    /// FID_k along the real clips' first principal axis, and without it
+    /// (see [`KineticAxis`]): how much of FID_k is the clips' overall
+    /// activity. `None` where FID_k is.
+    pub fid_k_axis: Option<KineticAxis>,
     /// 5th and 95th percentiles of FID_k / FID_g over bootstrap resamples
     /// of the generated clips (the real side fixed): how far the figure
     /// moves with which clips happened to be drawn.
@@ -80,6 +84,30 @@ pub struct GenRow {
 pub struct LabelAcc {
     pub generated: f64,
     pub real: Option<f64>,
+}
+
+/// The held-out real clips' first principal axis of the standardised
+/// kinetic features ([`crate::keyframes::metrics::Axis`]): on motion it
+/// is a clip's overall activity (every joint's speed at once: runs and
+/// dashes at one end, standing and waving at the other).
+#[derive(Clone, Debug, Serialize)]
+pub struct KineticAxis {
+    /// The axis's share of the real clips' standardised variance.
+    pub real_share: f64,
+    /// Variance along the axis, held-out real and generated.
+    pub real_var: f64,
+    pub gen_var: f64,
+    /// Generated mean − real mean along the axis, in real standard
+    /// deviations.
+    pub shift: f64,
+    /// FID_k's term along the axis alone.
+    pub cost: f64,
+    /// FID_k with the axis removed from both sides, beside the real
+    /// yardstick at this row's clip count with it removed too.
+    pub fid_k_without: f64,
+    pub fid_k_real_same_n_without: Option<f64>,
+    /// The three features that load the axis most (largest first).
+    pub top_features: Vec<String>,
 }
 
 /// One kinetic feature's gap, generated vs held-out real.

@@ -10,16 +10,19 @@ use crate::features::pca::{jacobi_eigen, matmul};
 /// standard deviation (dimensions with zero spread in the real set are
 /// left unscaled).
 pub fn fid(real: &[Vec<f64>], fake: &[Vec<f64>]) -> Option<f64> {
+    let (a, b) = standardised(real, fake)?;
+    Some(frechet(&a, &b))
+}
+
+/// Both sets scaled by the real set's per-dimension mean and standard
+/// deviation ([`fid`]'s rule), or `None` when either set has under two
+/// rows or the rows' lengths differ.
+fn standardised(real: &[Vec<f64>], fake: &[Vec<f64>]) -> Option<(Vec<Vec<f64>>, Vec<Vec<f64>>)> {
     let d = real.first()?.len();
     if real.len() < 2 || fake.len() < 2 || fake.iter().chain(real).any(|r| r.len() != d) {
         return None;
     }
-    let mean = |x: &[Vec<f64>]| -> Vec<f64> {
-        (0..d)
-            .map(|k| x.iter().map(|r| r[k]).sum::<f64>() / x.len() as f64)
-            .collect()
-    };
-    let mu_r = mean(real);
+    let mu_r = mean(real, d);
     let sd: Vec<f64> = (0..d)
         .map(|k| {
             let v = real.iter().map(|r| (r[k] - mu_r[k]).powi(2)).sum::<f64>()
@@ -36,28 +39,43 @@ pub fn fid(real: &[Vec<f64>], fake: &[Vec<f64>]) -> Option<f64> {
             .map(|r| (0..d).map(|k| (r[k] - mu_r[k]) / sd[k]).collect())
             .collect()
     };
-    let (a, b) = (norm_set(real), norm_set(fake));
-    let (ma, mb) = (mean(&a), mean(&b));
-    let cov = |x: &[Vec<f64>], m: &[f64]| -> Vec<f64> {
-        let mut c = vec![0.0; d * d];
-        for r in x {
-            for i in 0..d {
-                let di = r[i] - m[i];
-                for k in i..d {
-                    c[i * d + k] += di * (r[k] - m[k]);
-                }
-            }
-        }
+    Some((norm_set(real), norm_set(fake)))
+}
+
+fn mean(x: &[Vec<f64>], d: usize) -> Vec<f64> {
+    (0..d)
+        .map(|k| x.iter().map(|r| r[k]).sum::<f64>() / x.len() as f64)
+        .collect()
+}
+
+/// The sample covariance (row-major d × d) of rows about their mean `m`.
+fn cov(x: &[Vec<f64>], m: &[f64]) -> Vec<f64> {
+    let d = m.len();
+    let mut c = vec![0.0; d * d];
+    for r in x {
         for i in 0..d {
+            let di = r[i] - m[i];
             for k in i..d {
-                let v = c[i * d + k] / (x.len() - 1) as f64;
-                c[i * d + k] = v;
-                c[k * d + i] = v;
+                c[i * d + k] += di * (r[k] - m[k]);
             }
         }
-        c
-    };
-    let (ca, cb) = (cov(&a, &ma), cov(&b, &mb));
+    }
+    for i in 0..d {
+        for k in i..d {
+            let v = c[i * d + k] / (x.len() - 1) as f64;
+            c[i * d + k] = v;
+            c[k * d + i] = v;
+        }
+    }
+    c
+}
+
+/// The Fréchet distance of Gaussians fitted to two sets as they are (at
+/// least two rows each, one length).
+fn frechet(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let d = a[0].len();
+    let (ma, mb) = (mean(a, d), mean(b, d));
+    let (ca, cb) = (cov(a, &ma), cov(b, &mb));
     // Tr √(Ca Cb) = Σ √λ(√Ca Cb √Ca).
     let (va, ea) = jacobi_eigen(ca.clone(), d);
     let mut sq = vec![0.0; d * d];
@@ -81,7 +99,81 @@ pub fn fid(real: &[Vec<f64>], fake: &[Vec<f64>]) -> Option<f64> {
     let tr_a: f64 = (0..d).map(|i| ca[i * d + i]).sum();
     let tr_b: f64 = (0..d).map(|i| cb[i * d + i]).sum();
     let dm: f64 = ma.iter().zip(&mb).map(|(x, y)| (x - y).powi(2)).sum();
-    Some((dm + tr_a + tr_b - 2.0 * tr_sqrt).max(0.0))
+    (dm + tr_a + tr_b - 2.0 * tr_sqrt).max(0.0)
+}
+
+/// The real set's first principal axis (its standardised features, as
+/// [`fid`] scales them) and how a generated set sits along it. On motion
+/// features this axis is a clip's overall activity, every joint's speed
+/// at once (on Bandai it holds over half the real variance: takes that
+/// run or dash against takes that stand and wave), and a generator that
+/// makes only moderate clips loses most of its FID there.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Axis {
+    /// Unit vector over the features, signed so its loadings sum ≥ 0
+    /// (up the axis = more of every feature).
+    pub loadings: Vec<f64>,
+    /// The axis's share of the real set's total standardised variance.
+    pub real_share: f64,
+    /// Variance along the axis: real, generated.
+    pub real_var: f64,
+    pub gen_var: f64,
+    /// (generated mean − real mean) along the axis, in real standard
+    /// deviations along it.
+    pub shift: f64,
+    /// The one-dimensional Fréchet term along the axis, in [`fid`]'s
+    /// units: (mean difference)² + (√real_var − √gen_var)².
+    pub cost: f64,
+    /// [`fid`] with the axis projected out of both sets: what is left
+    /// once the clips' activity is set aside.
+    pub fid_without: f64,
+}
+
+/// [`Axis`] for a generated set against a real one (`None` as [`fid`]).
+pub fn first_axis(real: &[Vec<f64>], gen: &[Vec<f64>]) -> Option<Axis> {
+    let (a, b) = standardised(real, gen)?;
+    let d = a[0].len();
+    let ma = mean(&a, d);
+    let (vals, vecs) = jacobi_eigen(cov(&a, &ma), d);
+    let top = (0..d).max_by(|&i, &k| vals[i].total_cmp(&vals[k]))?;
+    // jacobi_eigen's vectors are its matrix's columns.
+    let mut v: Vec<f64> = (0..d).map(|i| vecs[i * d + top]).collect();
+    if v.iter().sum::<f64>() < 0.0 {
+        v.iter_mut().for_each(|x| *x = -*x);
+    }
+    let along = |x: &[Vec<f64>]| -> Vec<f64> {
+        x.iter()
+            .map(|r| r.iter().zip(&v).map(|(p, q)| p * q).sum())
+            .collect()
+    };
+    let moments = |p: &[f64]| {
+        let m = p.iter().sum::<f64>() / p.len() as f64;
+        let var = p.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (p.len() - 1) as f64;
+        (m, var)
+    };
+    let ((mr, vr), (mg, vg)) = (moments(&along(&a)), moments(&along(&b)));
+    let total: f64 = vals.iter().map(|x| x.max(0.0)).sum();
+    let off = |x: &[Vec<f64>]| -> Vec<Vec<f64>> {
+        x.iter()
+            .map(|r| {
+                let p: f64 = r.iter().zip(&v).map(|(p, q)| p * q).sum();
+                r.iter().zip(&v).map(|(x, q)| x - p * q).collect()
+            })
+            .collect()
+    };
+    Some(Axis {
+        real_share: if total > 0.0 { vr / total } else { 0.0 },
+        real_var: vr,
+        gen_var: vg,
+        shift: if vr > 1e-24 {
+            (mg - mr) / vr.sqrt()
+        } else {
+            mg - mr
+        },
+        cost: (mg - mr).powi(2) + (vr.sqrt() - vg.sqrt()).powi(2),
+        fid_without: frechet(&off(&a), &off(&b)),
+        loadings: v,
+    })
 }
 
 /// Bootstrap resamples behind [`fid_range`].
@@ -125,6 +217,18 @@ pub const FID_SAME_SIZE_DRAWS: usize = 50;
 /// even if it were real. `None` when the pool has fewer than `n` rows
 /// (the yardstick would be the plain one) or `n < 2`.
 pub fn fid_same_size(real: &[Vec<f64>], pool: &[Vec<f64>], n: usize) -> Option<f64> {
+    same_size_by(real, pool, n, fid)
+}
+
+/// [`fid_same_size`] for any distance between two sets (the same draws):
+/// the yardstick of a figure derived from [`fid`], such as
+/// [`Axis::fid_without`].
+pub fn same_size_by(
+    real: &[Vec<f64>],
+    pool: &[Vec<f64>],
+    n: usize,
+    dist: impl Fn(&[Vec<f64>], &[Vec<f64>]) -> Option<f64>,
+) -> Option<f64> {
     use rand::seq::SliceRandom;
     use rand::SeedableRng;
     if n < 2 || pool.len() < n {
@@ -136,7 +240,7 @@ pub fn fid_same_size(real: &[Vec<f64>], pool: &[Vec<f64>], n: usize) -> Option<f
         .filter_map(|_| {
             idx.shuffle(&mut rng);
             let pick: Vec<Vec<f64>> = idx[..n].iter().map(|&i| pool[i].clone()).collect();
-            fid(real, &pick).filter(|x| x.is_finite())
+            dist(real, &pick).filter(|x| x.is_finite())
         })
         .collect();
     if v.is_empty() {
