@@ -22,7 +22,9 @@ pub struct ExemplarsArgs {
     /// Exemplars per label value.
     #[arg(long, default_value_t = 3)]
     pub per_label: usize,
-    /// Label kinds to cover (default: every kind the model is conditioned on).
+    /// Label kinds to cover (default: every kind the model is conditioned
+    /// on, and the file is written afresh). Named kinds replace only their
+    /// own spans: the folder's exemplars for other kinds are kept.
     #[arg(long = "kind")]
     pub kinds: Vec<String>,
     /// How spans are chosen: `heads` keeps, per label value, the spans the
@@ -150,6 +152,21 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
     }
     if ex.is_empty() {
         bail!("--data: no training sequence carries a label of {kinds:?} the model knows");
+    }
+    // Named kinds replace only their own spans: the folder's other kinds
+    // keep theirs.
+    let mut ex = ex;
+    if !a.kinds.is_empty() {
+        let old = Exemplars::load(&a.model, &vocab).with_context(|| {
+            format!(
+                "reading the spans of other kinds from {} (remove it to start afresh)",
+                a.model.join(choreo::lm::exemplars::FILE).display()
+            )
+        })?;
+        if let Some(old) = old {
+            let kept = ex.keep_others(old, &kinds);
+            eprintln!("kept {kept} spans chosen for other kinds from the previous file");
+        }
     }
     ex.save(&a.model).with_context(|| {
         format!(

@@ -74,8 +74,10 @@ pub struct Exemplars {
     /// The model's frame rate and tokens per frame (checked at load).
     pub fps: f64,
     pub frame_len: usize,
-    /// Seconds of each span; a label value none of whose takes is that
-    /// long has its longest takes whole instead (each item's `frames`).
+    /// Seconds of each span the last `choreo exemplars` run wrote; a label
+    /// value none of whose takes is that long has its longest takes whole
+    /// instead, and spans kept from an earlier run for other kinds keep
+    /// their own length (each item's `frames`).
     pub seconds: f64,
     pub items: Vec<Exemplar>,
     /// Decoded tokens, one per item.
@@ -154,6 +156,33 @@ impl Exemplars {
 
     pub fn len(&self) -> usize {
         self.items.len()
+    }
+
+    /// Keeps `old`'s spans for the label kinds this set was not built for,
+    /// so that rewriting one kind's exemplars (`choreo exemplars --kind
+    /// style`) leaves the other kinds' as they were: a span of `old` keeps
+    /// its choices for other kinds and loses those for `kinds` (those are
+    /// this set's now); a span left with no choice is dropped, as is one
+    /// from a file without choices that carries a label of `kinds`.
+    /// Returns how many spans were kept.
+    pub fn keep_others(&mut self, old: Exemplars, kinds: &[String]) -> usize {
+        let mut kept = 0;
+        for (mut it, toks) in old.items.into_iter().zip(old.decoded) {
+            if it.chosen_for.is_empty() {
+                if kinds.iter().any(|k| it.labels.contains_key(k)) {
+                    continue;
+                }
+            } else {
+                it.chosen_for.retain(|c| !kinds.contains(&c.kind));
+                if it.chosen_for.is_empty() {
+                    continue;
+                }
+            }
+            self.items.push(it);
+            self.decoded.push(toks);
+            kept += 1;
+        }
+        kept
     }
 
     pub fn is_empty(&self) -> bool {

@@ -373,3 +373,55 @@ fn from_start_takes_each_span_from_its_takes_opening() {
     });
     assert!(inside.items.iter().all(|e| e.start_frame > 0));
 }
+
+#[test]
+fn rewriting_one_kind_keeps_the_other_kinds_spans() {
+    let v = vocab();
+    let seqs = vec![
+        seq("a", "happy", "walk", 300, &v),
+        seq("b", "sad", "run", 300, &v),
+    ];
+    let both = vec!["style".to_string(), "content".to_string()];
+    let style = vec!["style".to_string()];
+    let old = Exemplars::build(&seqs, &v, &both, 2.0, 1, None, SpanChoice::default()).unwrap();
+    let chosen = |ex: &Exemplars, kind: &str| -> usize {
+        ex.items
+            .iter()
+            .map(|e| e.chosen_for.iter().filter(|c| c.kind == kind).count())
+            .sum()
+    };
+    assert_eq!((chosen(&old, "style"), chosen(&old, "content")), (2, 2));
+    // Style rewritten with 1 s spans: the content choices survive, the old
+    // style choices do not, and the new spans keep their own length.
+    let mut new = Exemplars::build(&seqs, &v, &style, 1.0, 1, None, SpanChoice::default()).unwrap();
+    let n_new = new.len();
+    let kept = new.keep_others(old.clone(), &style);
+    assert!(kept >= 1 && new.len() == n_new + kept);
+    assert_eq!((chosen(&new, "style"), chosen(&new, "content")), (2, 2));
+    let short = (1.0 * v.fps).round() as usize;
+    assert!(new.items[..n_new].iter().all(|e| e.frames == short));
+    assert!(new.items[n_new..]
+        .iter()
+        .all(|e| e.frames == 2 * short && e.chosen_for.iter().all(|c| c.kind == "content")));
+    // A content request still gets a content span, a style request a new
+    // style span; the merged file loads back whole.
+    let mut walk = Labels::new();
+    walk.insert("content".into(), "walk".into());
+    let (e, t) = new.pick(&walk, 3).unwrap();
+    assert!(
+        e.chosen_for.iter().any(|c| c.kind == "content") && t.len() == e.frames * v.frame_len()
+    );
+    let mut happy = Labels::new();
+    happy.insert("style".into(), "happy".into());
+    assert_eq!(new.pick(&happy, 3).unwrap().0.frames, short);
+    let dir = tempfile::tempdir().unwrap();
+    new.save(dir.path()).unwrap();
+    let back = Exemplars::load(dir.path(), &v).unwrap().unwrap();
+    assert_eq!(back.len(), new.len());
+    // A file from before `chosen_for`: its spans carrying a style go.
+    let mut legacy = old;
+    legacy.items.iter_mut().for_each(|e| e.chosen_for.clear());
+    let mut again =
+        Exemplars::build(&seqs, &v, &style, 1.0, 1, None, SpanChoice::default()).unwrap();
+    assert_eq!(again.keep_others(legacy, &style), 0);
+}
