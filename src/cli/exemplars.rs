@@ -124,7 +124,7 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
             bail!("--cover {c}: no training sequence carries a {c} label");
         }
     }
-    let ex = Exemplars::build(
+    let mut ex = Exemplars::build(
         &sequences,
         &vocab,
         &kinds,
@@ -155,7 +155,6 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
     }
     // Named kinds replace only their own spans: the folder's other kinds
     // keep theirs.
-    let mut ex = ex;
     if !a.kinds.is_empty() {
         let old = Exemplars::load(&a.model, &vocab).with_context(|| {
             format!(

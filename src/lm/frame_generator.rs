@@ -257,6 +257,8 @@ impl FrameGenerator {
         let mut local = session.new_local_cache();
         let mut frame = Vec::with_capacity(fl);
         let mut inp = c.start();
+        let pull = self.pull.clone();
+        let pull = pull.as_deref().map(|p| p.for_frame(p1.as_deref()));
         for s in 0..c.slots {
             session.local_step(&mut self.lstate, &mut local, &self.h, inp, vel[s], prev[s])?;
             let out = &self.lstate.out;
@@ -274,10 +276,7 @@ impl FrameGenerator {
                     &mut self.rng,
                     c,
                     (out.data(0), out.data(1)),
-                    self.pull
-                        .as_ref()
-                        .map(|p| p.slot(s, &frame, p1.as_deref()))
-                        .as_deref(),
+                    pull.as_ref().map(|p| p.slot(s, &frame)).as_deref(),
                     p1.as_ref().map(|p| p[s]),
                     c.wraps(s),
                 ),

@@ -393,21 +393,16 @@ pub struct Pull {
 }
 
 impl Pull {
-    /// Slot `s`'s offsets: for a joint slot (s ≥ 3) of a label with pose
-    /// clusters and a previous frame, the clusters' offsets weighted by
-    /// their responsibility for the previous frame; for a root rotation component (s < 3) with tilt
-    /// figures, every bin's `−w Σ_labels (t − μ)² / (2σ²)`, t the tilt of
-    /// the axis-angle made of that bin, the components this frame has
-    /// drawn (`drawn[..s]`) and the previous frame's for the rest (zero
-    /// without one); otherwise the slot's fixed offsets.
-    pub fn slot(&self, s: usize, drawn: &[u32], prev: Option<&[u32]>) -> Cow<'_, [f32]> {
-        if s >= 3 {
-            if let (false, Some(p)) = (self.mixtures.is_empty(), prev) {
-                // Each clustered label's clusters, weighted by how likely
-                // each makes the previous frame (its share times its
-                // Gaussian), beside the other labels' mean poses.
-                let mut out = self.plain[s].clone();
-                for mix in &self.mixtures {
+    /// The pull for the frame after `prev` (None: a clip's first frame).
+    /// For labels with pose clusters, each cluster's responsibility for
+    /// the previous frame (its share times its Gaussian, normalised per
+    /// label) is worked out here, once a frame, not once a slot.
+    pub fn for_frame<'a>(&'a self, prev: Option<&'a [u32]>) -> FramePull<'a> {
+        let resp = match prev {
+            Some(p) => self
+                .mixtures
+                .iter()
+                .map(|mix| {
                     let ll: Vec<f64> = mix
                         .iter()
                         .map(|(lw, off)| {
@@ -420,34 +415,71 @@ impl Pull {
                         .collect();
                     let m = ll.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
                     let z: f64 = ll.iter().map(|l| (l - m).exp()).sum();
-                    for ((_, off), l) in mix.iter().zip(&ll) {
-                        let r = ((l - m).exp() / z * self.weight) as f32;
-                        for (o, x) in out.iter_mut().zip(&off[s]) {
-                            *o += r * x;
-                        }
+                    ll.iter()
+                        .map(|l| ((l - m).exp() / z * self.weight) as f32)
+                        .collect()
+                })
+                .collect(),
+            None => Vec::new(),
+        };
+        FramePull {
+            pull: self,
+            prev,
+            resp,
+        }
+    }
+}
+
+/// [`Pull`] for one frame ([`Pull::for_frame`]).
+pub struct FramePull<'a> {
+    pull: &'a Pull,
+    prev: Option<&'a [u32]>,
+    /// Per clustered label, each cluster's responsibility for the
+    /// previous frame times the pull's weight (empty without a previous
+    /// frame or clusters).
+    resp: Vec<Vec<f32>>,
+}
+
+impl<'a> FramePull<'a> {
+    /// Slot `s`'s offsets: for a joint slot (s ≥ 3) of a label with pose
+    /// clusters and a previous frame, the clusters' offsets weighted by
+    /// their responsibility for the previous frame, beside the other
+    /// labels' mean poses; for a root rotation component (s < 3) with tilt
+    /// figures, every bin's `−w Σ_labels (t − μ)² / (2σ²)`, t the tilt of
+    /// the axis-angle made of that bin, the components this frame has
+    /// drawn (`drawn[..s]`) and the previous frame's for the rest (zero
+    /// without one); otherwise the slot's fixed offsets.
+    pub fn slot(&self, s: usize, drawn: &[u32]) -> Cow<'a, [f32]> {
+        let pl: &'a Pull = self.pull;
+        if s >= 3 && !self.resp.is_empty() {
+            let mut out = pl.plain[s].clone();
+            for (mix, rs) in pl.mixtures.iter().zip(&self.resp) {
+                for ((_, off), &r) in mix.iter().zip(rs) {
+                    for (o, x) in out.iter_mut().zip(&off[s]) {
+                        *o += r * x;
                     }
                 }
-                return Cow::Owned(out);
             }
+            return Cow::Owned(out);
         }
-        if s >= 3 || self.tilt.is_empty() {
-            return Cow::Borrowed(&self.offsets[s]);
+        if s >= 3 || pl.tilt.is_empty() {
+            return Cow::Borrowed(&pl.offsets[s]);
         }
         let mut aa = [0.0; 3];
         for (i, a) in aa.iter_mut().enumerate() {
             let b = if i < s {
                 drawn.get(i)
             } else {
-                prev.and_then(|p| p.get(i))
+                self.prev.and_then(|p| p.get(i))
             };
-            *a = b.map_or(0.0, |&b| self.angles.decode(b));
+            *a = b.map_or(0.0, |&b| pl.angles.decode(b));
         }
         Cow::Owned(
-            (0..self.angles.bins)
+            (0..pl.angles.bins)
                 .map(|b| {
-                    aa[s] = self.angles.decode(b as u32);
+                    aa[s] = pl.angles.decode(b as u32);
                     let t = up_tilt_degrees(aa);
-                    let x: f64 = self
+                    let x: f64 = pl
                         .tilt
                         .iter()
                         .map(|st| {
@@ -455,7 +487,7 @@ impl Pull {
                             -d * d / (2.0 * st.spread * st.spread)
                         })
                         .sum();
-                    self.offsets[s][b] + (self.weight * x) as f32
+                    pl.offsets[s][b] + (pl.weight * x) as f32
                 })
                 .collect(),
         )

@@ -102,22 +102,22 @@ fn pose_clusters_split_a_label_and_the_pull_follows_the_previous_frame() {
     let pull = p.pull(&labels, 1.0).unwrap();
     let mut prev = vec![0u32; slots];
     // Without a previous frame: the label's one mean pose (bin 40).
-    assert_eq!(peak(&pull.slot(3, &[], None)), 40);
+    assert_eq!(peak(&pull.for_frame(None).slot(3, &[])), 40);
     // A previous frame in either cluster: that cluster's pose.
     prev[3] = 12;
-    assert_eq!(peak(&pull.slot(3, &[], Some(&prev))), 10);
+    assert_eq!(peak(&pull.for_frame(Some(&prev)).slot(3, &[])), 10);
     prev[3] = 97;
-    assert_eq!(peak(&pull.slot(3, &[], Some(&prev))), 100);
+    assert_eq!(peak(&pull.for_frame(Some(&prev)).slot(3, &[])), 100);
     // Halfway, both clusters pull: the peak lies between them.
     prev[3] = 55;
-    let mid = peak(&pull.slot(3, &[], Some(&prev)));
+    let mid = peak(&pull.for_frame(Some(&prev)).slot(3, &[]));
     assert!((10..=100).contains(&mid), "{mid}");
     // The weight scales the offsets.
     let pull2 = p.pull(&labels, 2.0).unwrap();
     prev[3] = 12;
     let (a, b) = (
-        pull.slot(3, &[], Some(&prev)),
-        pull2.slot(3, &[], Some(&prev)),
+        pull.for_frame(Some(&prev)).slot(3, &[]),
+        pull2.for_frame(Some(&prev)).slot(3, &[]),
     );
     assert!(
         (b[200] - 2.0 * a[200]).abs() < 1e-3 * a[200].abs(),
@@ -139,18 +139,18 @@ fn pose_clusters_split_a_label_and_the_pull_follows_the_previous_frame() {
         .into_iter()
         .collect();
     let pw = p.pull(&wave, 1.0).unwrap();
-    assert_eq!(peak(&pw.slot(4, &[], Some(&prev))), 200);
+    assert_eq!(peak(&pw.for_frame(Some(&prev)).slot(4, &[])), 200);
     for s in [3, 4] {
         let (b, w, h) = (
-            pb.slot(s, &[], Some(&prev)),
-            pw.slot(s, &[], Some(&prev)),
-            pull.slot(s, &[], Some(&prev)),
+            pb.for_frame(Some(&prev)).slot(s, &[]),
+            pw.for_frame(Some(&prev)).slot(s, &[]),
+            pull.for_frame(Some(&prev)).slot(s, &[]),
         );
         for i in 0..360 {
             assert!((b[i] - (w[i] + h[i])).abs() < 1e-4, "slot {s} bin {i}");
         }
     }
-    assert_eq!(peak(&pb.slot(3, &[], Some(&prev))), 10);
+    assert_eq!(peak(&pb.for_frame(Some(&prev)).slot(3, &[])), 10);
 }
 
 #[test]
