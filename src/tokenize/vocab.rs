@@ -7,7 +7,7 @@
 //! | slots  | what |
 //! |--------|------|
 //! | 0–38   | the 13 joints' axis-angle components (x, y, z per joint, Table A.1 order), uniform bins over [−π, π] |
-//! | 39, 40 | root ground-plane velocity x, z (m/s), uniform bins over `velocity_range` |
+//! | 39, 40 | root ground-plane velocity (m/s), uniform bins over `velocity_range`: x, z in the scene's axes, or (`root_velocity: heading`) sideways, forward in the pelvis's heading |
 //! | 41     | root (pelvis) height above the clip's floor (m), uniform bins over `height_range` |
 //! | 42     | the separator |
 //!
@@ -47,6 +47,63 @@ pub struct Vocabulary {
     pub height_range: [f64; 2],
     /// Label kind → known values.
     pub labels: BTreeMap<String, BTreeSet<String>>,
+    /// The axes the root velocity slots are read in. Absent in the JSON
+    /// of every vocabulary before it existed, which means `world`.
+    #[serde(default, skip_serializing_if = "RootVelocity::is_world")]
+    pub root_velocity: RootVelocity,
+}
+
+/// The axes of the root's ground velocity slots (39, 40).
+///
+/// - `world`: x and z of the scene. Running forward is a different pair
+///   of tokens for every direction the body faces, and the model must
+///   work out the facing from the pelvis's axis-angle tokens to predict it.
+/// - `heading`: sideways (+x to the body's left) and forward, in the
+///   frame of the pelvis's heading (its forward axis projected on the
+///   ground) at the same frame, read from the pelvis's *quantised*
+///   rotation so encoding and decoding turn by the same angle. Running
+///   forward is one token pair whichever way the body faces; the heading
+///   itself stays in the pelvis's rotation slots.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RootVelocity {
+    #[default]
+    World,
+    Heading,
+}
+
+impl RootVelocity {
+    pub fn is_world(&self) -> bool {
+        *self == RootVelocity::World
+    }
+    pub fn parse(s: &str) -> Result<RootVelocity, String> {
+        match s {
+            "world" => Ok(RootVelocity::World),
+            "heading" => Ok(RootVelocity::Heading),
+            other => Err(format!("{other:?}: want world or heading")),
+        }
+    }
+}
+
+/// The heading (yaw about +y, radians) of a pelvis axis-angle: the angle
+/// of its forward axis (+z) projected on the ground, or, for a body lying
+/// along y (forward nearly vertical), of its sideways axis turned a
+/// quarter.
+pub fn heading_of(pelvis: Vec3) -> f64 {
+    let m = crate::motion::rotation::axis_angle_to_mat(pelvis);
+    let f = crate::motion::rotation::mat_vec(&m, [0.0, 0.0, 1.0]);
+    if f[0].hypot(f[2]) > 0.2 {
+        return f[0].atan2(f[2]);
+    }
+    let r = crate::motion::rotation::mat_vec(&m, [1.0, 0.0, 0.0]);
+    // +x (left) is forward turned +90° about y: forward = x turned -90°.
+    r[0].atan2(r[2]) - std::f64::consts::FRAC_PI_2
+}
+
+/// A ground vector (x, z) turned by `yaw` about +y.
+fn turn(v: (f64, f64), yaw: f64) -> (f64, f64) {
+    let (s, c) = yaw.sin_cos();
+    (v.0 * c + v.1 * s, -v.0 * s + v.1 * c)
 }
 
 /// What a token id stands for.
@@ -73,6 +130,7 @@ impl Vocabulary {
             velocity_range: [-4.0, 4.0],
             height_range: [-0.5, 2.0],
             labels,
+            root_velocity: RootVelocity::World,
         }
     }
 
@@ -391,8 +449,17 @@ impl Vocabulary {
             }
             debug_assert_eq!(j * 3, self.joints.len() * 3);
             let (p, q) = (root(t), root(t.saturating_sub(1)));
-            out.push(vb.encode((p[0] - q[0]) * m.fps));
-            out.push(vb.encode((p[2] - q[2]) * m.fps));
+            let v = ((p[0] - q[0]) * m.fps, (p[2] - q[2]) * m.fps);
+            let v = match self.root_velocity {
+                RootVelocity::World => v,
+                RootVelocity::Heading => {
+                    let n = self.joints.len();
+                    let pelvis = &out[out.len() - 3 * n..out.len() - 3 * n + 3];
+                    turn(v, -self.pelvis_heading(pelvis))
+                }
+            };
+            out.push(vb.encode(v.0));
+            out.push(vb.encode(v.1));
             out.push(hb.encode(p[1] - floor));
             out.push(self.sep());
         }
@@ -410,11 +477,27 @@ impl Vocabulary {
         (frame[3 * nj], frame[3 * nj + 1])
     }
 
-    /// The root's ground-plane velocity (x, z, m/s) a frame's tokens carry.
+    /// The root's ground-plane velocity in the scene's axes (x, z, m/s) a
+    /// frame's tokens carry (turned by the frame's pelvis heading where the
+    /// slots are heading-relative).
     pub fn decode_root_velocity(&self, frame: &[u32]) -> (f64, f64) {
         let nj = self.joints.len();
         let vb = self.velocity_bins();
-        (vb.decode(frame[3 * nj]), vb.decode(frame[3 * nj + 1]))
+        let v = (vb.decode(frame[3 * nj]), vb.decode(frame[3 * nj + 1]));
+        match self.root_velocity {
+            RootVelocity::World => v,
+            RootVelocity::Heading => turn(v, self.pelvis_heading(&frame[..3])),
+        }
+    }
+
+    /// The heading of a frame's pelvis rotation tokens (slots 0–2).
+    fn pelvis_heading(&self, tokens: &[u32]) -> f64 {
+        let ab = self.angle_bins();
+        heading_of([
+            ab.decode(tokens[0]),
+            ab.decode(tokens[1]),
+            ab.decode(tokens[2]),
+        ])
     }
 
     /// Decode a token stream into a motion. A leading `<bos>` and
@@ -449,7 +532,7 @@ impl Vocabulary {
             MotionError::invalid(name, "vocabulary.skeleton", self.skeleton.clone())
         })?;
         let o = sk.offsets[0];
-        let (ab, vb, hb) = (self.angle_bins(), self.velocity_bins(), self.height_bins());
+        let (ab, hb) = (self.angle_bins(), self.height_bins());
         let nj = self.joints.len();
         let mut rots = Vec::with_capacity(frames * nj);
         let mut trans = Vec::with_capacity(frames);
@@ -478,8 +561,9 @@ impl Vocabulary {
                 ]);
             }
             if f > 0 {
-                x += vb.decode(w[3 * nj]) / self.fps;
-                z += vb.decode(w[3 * nj + 1]) / self.fps;
+                let (vx, vz) = self.decode_root_velocity(w);
+                x += vx / self.fps;
+                z += vz / self.fps;
             }
             let h = hb.decode(w[3 * nj + 2]);
             trans.push([x - o[0], h - o[1], z - o[2]]);

@@ -57,9 +57,22 @@ pub(crate) fn load_corpus(
     smpl24: bool,
     fps: f64,
 ) -> Result<(choreo::tokenize::vocab::Vocabulary, Corpus)> {
+    load_corpus_as(a, vocab, kinds, smpl24, fps, None)
+}
+
+/// [`load_corpus`], the root velocity slots read in `root_velocity`'s axes
+/// where it is given (the vocabulary's own, or world for a new one, where not).
+pub(crate) fn load_corpus_as(
+    a: &DataArgs,
+    vocab: Option<&choreo::tokenize::vocab::Vocabulary>,
+    kinds: &[String],
+    smpl24: bool,
+    fps: f64,
+    root_velocity: Option<choreo::tokenize::vocab::RootVelocity>,
+) -> Result<(choreo::tokenize::vocab::Vocabulary, Corpus)> {
     let dirs = data::corpus_dirs(&a.data, &a.corpora)?;
     let (motions, info) = data::read_motions(&dirs)?;
-    let vocab = match vocab {
+    let mut vocab = match vocab {
         Some(v) => v.clone(),
         None => {
             let mut v = data::vocabulary_for(&motions, kinds, smpl24);
@@ -67,6 +80,9 @@ pub(crate) fn load_corpus(
             v
         }
     };
+    if let Some(r) = root_velocity {
+        vocab.root_velocity = r;
+    }
     let corpus = data::build(motions, &vocab, a.val_fraction, !a.no_mirror, info)?;
     Ok((vocab, corpus))
 }

@@ -18,7 +18,17 @@ pub(crate) fn frame(a: FrameArgs, engine: &choreo::lm::engine::Engine) -> Result
     } else {
         None
     };
-    let (vocab, corpus) = load_corpus(&a.data, known.as_ref(), &kinds, false, a.fps)?;
+    if a.resume && a.root_velocity.is_some() {
+        bail!("--root-velocity: a resumed run keeps its own vocabulary's");
+    }
+    let (vocab, corpus) = load_corpus_as(
+        &a.data,
+        known.as_ref(),
+        &kinds,
+        false,
+        a.fps,
+        a.root_velocity,
+    )?;
     eprintln!(
         "data: {} files from {:?}; {} train / {} validation sequences; {} training tokens (mirrors included)",
         corpus.info.files,

@@ -161,6 +161,12 @@ struct FrameArgs {
     /// position 0, and train with whole-conditioning dropout (guidance).
     #[arg(long)]
     cond_every: bool,
+    /// The axes of the root velocity slots: `world` (the scene's x, z) or
+    /// `heading` (sideways, forward in the pelvis's heading). With
+    /// --init-from it re-expresses the parent's slots (the weights then
+    /// relearn what the two slots mean). Default: the parent's, or world.
+    #[arg(long, value_parser = choreo::tokenize::vocab::RootVelocity::parse)]
+    root_velocity: Option<choreo::tokenize::vocab::RootVelocity>,
     /// Largest per-frame change (bins) the change head names.
     #[arg(long, default_value_t = 24)]
     radius: usize,

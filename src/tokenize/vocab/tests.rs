@@ -131,3 +131,94 @@ fn bad_streams_are_errors() {
     l.insert("music".into(), "mBR0".into());
     assert!(v.prefix(&l).is_err());
 }
+
+/// A walk forward at 1.2 m/s with the body facing `yaw` (about +y), the
+/// pelvis also tilted 0.2 rad about its own sideways axis, turning
+/// `turn` rad a frame.
+fn walk_facing(yaw: f64, turn: f64, frames: usize) -> Motion {
+    use crate::motion::rotation::{axis_quat, quat_mul, quat_to_axis_angle, Axis};
+    let sk = Skeleton::smpl13();
+    let o = sk.offsets[0];
+    let mut rots = vec![[0.0; 3]; frames * 13];
+    let (mut x, mut z) = (0.0, 0.0);
+    let mut trans = Vec::new();
+    for f in 0..frames {
+        let h = yaw + turn * f as f64;
+        let q = quat_mul(axis_quat(Axis::Y, h), axis_quat(Axis::X, 0.2));
+        rots[f * 13] = quat_to_axis_angle(q);
+        if f > 0 {
+            x += 1.2 / 20.0 * h.sin();
+            z += 1.2 / 20.0 * h.cos();
+        }
+        trans.push([x - o[0], 0.9 - o[1], z - o[2]]);
+    }
+    Motion::new("walk", 20.0, sk, trans, rots, Labels::new()).unwrap()
+}
+
+#[test]
+fn heading_velocity_is_the_same_tokens_whichever_way_the_body_faces() {
+    let mut v = vocab();
+    v.root_velocity = RootVelocity::Heading;
+    let nj = v.joints.len();
+    let fl = v.frame_len();
+    let forward = v.encode_root_velocity(1.2);
+    let still = v.encode_root_velocity(0.0);
+    for yaw in [0.0, 0.7, -2.0, 3.0] {
+        let m = walk_facing(yaw, 0.0, 12);
+        let t = v.encode_motion(&m).unwrap();
+        for f in 1..12 {
+            let w = &t[f * fl..(f + 1) * fl];
+            // Sideways still, forward 1.2 m/s (±1 bin for the pelvis's
+            // quantised heading).
+            assert!(w[3 * nj].abs_diff(still) <= 1, "{yaw} {f}");
+            assert!(w[3 * nj + 1].abs_diff(forward) <= 1, "{yaw} {f}");
+        }
+        // In the scene's axes the same walk is a different pair per yaw.
+        let world = vocab().encode_motion(&m).unwrap();
+        let (wx, _) = vocab().root_velocity_tokens(&world[fl..2 * fl]);
+        assert_eq!(wx, vocab().encode_root_velocity(1.2 * yaw.sin()));
+    }
+}
+
+#[test]
+fn heading_velocity_decodes_to_the_same_path_as_world() {
+    // A walk that turns 2° a frame: both layouts rebuild the path to
+    // within their quantisation.
+    let m = walk_facing(0.4, 2f64.to_radians(), 60);
+    let mut h = vocab();
+    h.root_velocity = RootVelocity::Heading;
+    let json = h.to_json();
+    assert!(json.contains("\"root_velocity\": \"heading\""), "{json}");
+    assert!(!vocab().to_json().contains("root_velocity"));
+    let back = Vocabulary::from_json(&json, "v").unwrap();
+    assert_eq!(back.root_velocity, RootVelocity::Heading);
+    let a = m.positions();
+    for v in [vocab(), h] {
+        let d = v.decode_motion(&v.encode_motion(&m).unwrap(), "w").unwrap();
+        let b = d.positions();
+        for f in [20, 40, 59] {
+            let (p, q) = (a[f * 13], b[f * 13]);
+            let off =
+                ((p[0] - a[0][0]) - (q[0] - b[0][0])).hypot((p[2] - a[0][2]) - (q[2] - b[0][2]));
+            // 59 steps, each off by under a bin (2.2 cm/s → 1.1 mm) plus
+            // the heading's quantisation (½° of 6 cm).
+            assert!(off < 0.04, "{:?} frame {f}: {off}", v.root_velocity);
+        }
+    }
+}
+
+#[test]
+fn a_lying_body_still_has_a_heading() {
+    // Forward axis straight down (face to the floor): the heading comes
+    // from the sideways axis.
+    use crate::motion::rotation::{axis_quat, quat_mul, quat_to_axis_angle, Axis};
+    for yaw in [0.0f64, 1.0, -2.5] {
+        let q = quat_mul(
+            axis_quat(Axis::Y, yaw),
+            axis_quat(Axis::X, std::f64::consts::FRAC_PI_2),
+        );
+        let h = heading_of(quat_to_axis_angle(q));
+        let d = (h - yaw).rem_euclid(std::f64::consts::TAU);
+        assert!(d < 1e-9 || (std::f64::consts::TAU - d) < 1e-9, "{yaw} {h}");
+    }
+}
