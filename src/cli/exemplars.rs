@@ -45,6 +45,12 @@ pub struct ExemplarsArgs {
     /// a span from inside such a take ends where it stops).
     #[arg(long)]
     pub from_start: bool,
+    /// Choose no spans: take every span of this exemplars.json (another
+    /// model's, say the bundled one) and encode it afresh with this
+    /// model's vocabulary, from the same --data folders. For a model
+    /// whose token layout differs but should seed from the same motion.
+    #[arg(long, conflicts_with_all = ["kinds", "cover", "from_start", "choose"])]
+    pub same_spans_as: Option<PathBuf>,
 }
 
 /// The training side of each corpus folder (the trainer's split), as
@@ -96,6 +102,20 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
         a.kinds.clone()
     };
     let sequences = training_sequences(&vocab, &a.data)?;
+    if let Some(from) = &a.same_spans_as {
+        let ex = Exemplars::reencoded(from, &sequences, &vocab)
+            .with_context(|| format!("--same-spans-as {}", from.display()))?;
+        ex.save(&a.model).with_context(|| {
+            format!("writing {}", a.model.join(choreo::lm::exemplars::FILE).display())
+        })?;
+        println!(
+            "{} exemplars re-encoded from {} into {}",
+            ex.len(),
+            from.display(),
+            a.model.join(choreo::lm::exemplars::FILE).display()
+        );
+        return Ok(());
+    }
     let heads = m.class_kinds();
     let by_heads = match a.choose.as_deref() {
         Some("heads") if heads.is_empty() => {

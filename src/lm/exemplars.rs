@@ -189,6 +189,67 @@ impl Exemplars {
         self.items.is_empty()
     }
 
+    /// The same spans (sources, first frames, lengths, labels, choices) as
+    /// `old`, their tokens taken afresh from `sequences`, encoded with
+    /// another vocabulary: for a model whose token layout differs from the
+    /// one `old` was written for (say, heading-relative root velocity).
+    /// `old` is read as written, not checked against any vocabulary. A
+    /// span whose source is not among `sequences`, or is shorter than
+    /// the span, is an error naming the item.
+    pub fn reencoded(
+        old: &Path,
+        sequences: &[(String, Labels, Vec<u32>)],
+        vocab: &Vocabulary,
+    ) -> Result<Exemplars, LmError> {
+        let Some((mut ex, name)) = super::read_optional_json::<Exemplars>(old, "exemplars")?
+        else {
+            return Err(LmError::invalid(
+                &old.display().to_string(),
+                "exemplars",
+                "no such file",
+            ));
+        };
+        let fl = vocab.frame_len();
+        if (ex.fps - vocab.fps).abs() > 1e-9 {
+            return Err(LmError::invalid(
+                &name,
+                "fps",
+                format!("{} but the model runs at {} fps", ex.fps, vocab.fps),
+            ));
+        }
+        let by_name: BTreeMap<&str, &Vec<u32>> =
+            sequences.iter().map(|s| (s.0.as_str(), &s.2)).collect();
+        let mut decoded = Vec::with_capacity(ex.items.len());
+        for (i, it) in ex.items.iter_mut().enumerate() {
+            let field = format!("items[{i}].source");
+            let t = by_name.get(it.source.as_str()).ok_or_else(|| {
+                LmError::invalid(
+                    &name,
+                    &field,
+                    format!("{:?} is not among the training sequences read", it.source),
+                )
+            })?;
+            let (a, b) = (it.start_frame * fl, (it.start_frame + it.frames) * fl);
+            if b > t.len() {
+                return Err(LmError::invalid(
+                    &name,
+                    &field,
+                    format!(
+                        "{:?} has {} frames, the span ends at {}",
+                        it.source,
+                        t.len() / fl,
+                        it.start_frame + it.frames
+                    ),
+                ));
+            }
+            it.tokens = Exemplar::encode(&t[a..b]);
+            decoded.push(t[a..b].to_vec());
+        }
+        ex.frame_len = fl;
+        ex.decoded = decoded;
+        Ok(ex)
+    }
+
     /// The exemplar for `labels`: among the spans whose source carries the
     /// most of the asked-for labels (at least one), those chosen for the
     /// most of them (a span of a happy walk chosen as a clear walk is not
