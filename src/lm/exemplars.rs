@@ -217,12 +217,21 @@ impl Exemplars {
                 format!("{} but the model runs at {} fps", ex.fps, vocab.fps),
             ));
         }
-        let by_name: BTreeMap<&str, &Vec<u32>> =
-            sequences.iter().map(|s| (s.0.as_str(), &s.2)).collect();
+        // Sources are file names (see `build`); two corpora may hold the
+        // same one, so the span's labels pick between them.
+        let mut by_name: BTreeMap<String, Vec<(&Labels, &Vec<u32>)>> = BTreeMap::new();
+        for (n, labels, t) in sequences {
+            by_name.entry(file_name(n)).or_default().push((labels, t));
+        }
         let mut decoded = Vec::with_capacity(ex.items.len());
         for (i, it) in ex.items.iter_mut().enumerate() {
             let field = format!("items[{i}].source");
-            let t = by_name.get(it.source.as_str()).ok_or_else(|| {
+            let found = by_name.get(&it.source).and_then(|c| {
+                c.iter()
+                    .find(|(l, _)| **l == it.labels)
+                    .or(if c.len() == 1 { c.first() } else { None })
+            });
+            let t = found.map(|f| f.1).ok_or_else(|| {
                 LmError::invalid(
                     &name,
                     &field,
@@ -473,13 +482,8 @@ impl Exemplars {
         for ((i, st, frames), chosen_for) in chosen {
             let (name, labels, tokens) = &sequences[i];
             let span = tokens[st * fl..(st + frames) * fl].to_vec();
-            // The file name only: the path it was read from is this
-            // machine's, and answers repeat it.
-            let source = std::path::Path::new(name)
-                .file_name()
-                .map_or_else(|| name.clone(), |f| f.to_string_lossy().into_owned());
             items.push(Exemplar {
-                source,
+                source: file_name(name),
                 labels: labels.clone(),
                 start_frame: st,
                 frames,
@@ -530,6 +534,14 @@ pub struct Chosen {
 
 /// A well-mixed index from a request's seed (consecutive seeds pick
 /// unrelated exemplars).
+/// A sequence's file name without its folders: the path it was read from
+/// is this machine's, and answers repeat it.
+fn file_name(name: &str) -> String {
+    Path::new(name)
+        .file_name()
+        .map_or_else(|| name.to_string(), |f| f.to_string_lossy().into_owned())
+}
+
 fn splitmix(mut x: u64) -> u64 {
     x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
     x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
