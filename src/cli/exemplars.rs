@@ -106,7 +106,10 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
         let ex = Exemplars::reencoded(from, &sequences, &vocab)
             .with_context(|| format!("--same-spans-as {}", from.display()))?;
         ex.save(&a.model).with_context(|| {
-            format!("writing {}", a.model.join(choreo::lm::exemplars::FILE).display())
+            format!(
+                "writing {}",
+                a.model.join(choreo::lm::exemplars::FILE).display()
+            )
         })?;
         println!(
             "{} exemplars re-encoded from {} into {}",

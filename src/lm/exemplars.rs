@@ -201,8 +201,7 @@ impl Exemplars {
         sequences: &[(String, Labels, Vec<u32>)],
         vocab: &Vocabulary,
     ) -> Result<Exemplars, LmError> {
-        let Some((mut ex, name)) = super::read_optional_json::<Exemplars>(old, "exemplars")?
-        else {
+        let Some((mut ex, name)) = super::read_optional_json::<Exemplars>(old, "exemplars")? else {
             return Err(LmError::invalid(
                 &old.display().to_string(),
                 "exemplars",

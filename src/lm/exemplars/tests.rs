@@ -425,3 +425,47 @@ fn rewriting_one_kind_keeps_the_other_kinds_spans() {
         Exemplars::build(&seqs, &v, &style, 1.0, 1, None, SpanChoice::default()).unwrap();
     assert_eq!(again.keep_others(legacy, &style), 0);
 }
+
+#[test]
+fn the_same_spans_come_back_encoded_afresh() {
+    let v = vocab();
+    // Read from folders: the span keeps the file name only. Two corpora
+    // hold a file "b.bvh"; the labels tell them apart.
+    let seqs = vec![
+        seq("x/a.bvh", "happy", "walk", 300, &v),
+        seq("x/b.bvh", "sad", "run", 300, &v),
+        seq("y/b.bvh", "happy", "run", 300, &v),
+    ];
+    let both = vec!["style".to_string(), "content".to_string()];
+    let old = Exemplars::build(&seqs, &v, &both, 2.0, 1, None, SpanChoice::default()).unwrap();
+    assert!(old.items.iter().all(|e| !e.source.contains('/')));
+    let dir = tempfile::tempdir().unwrap();
+    old.save(dir.path()).unwrap();
+    // "Another layout": every token one higher.
+    let shifted: Vec<_> = seqs
+        .iter()
+        .map(|(n, l, t)| {
+            (
+                n.clone(),
+                l.clone(),
+                t.iter().map(|x| x + 1).collect::<Vec<u32>>(),
+            )
+        })
+        .collect();
+    let file = dir.path().join(FILE);
+    let new = Exemplars::reencoded(&file, &shifted, &v).unwrap();
+    assert_eq!(new.len(), old.len());
+    for (a, b) in old.items.iter().zip(&new.items) {
+        assert_eq!(
+            (&a.source, a.start_frame, a.frames, &a.labels),
+            (&b.source, b.start_frame, b.frames, &b.labels)
+        );
+        let (ta, tb) = (a.decode().unwrap(), b.decode().unwrap());
+        assert!(ta.iter().zip(&tb).all(|(x, y)| y == &(x + 1)));
+    }
+    // A source the folders no longer hold is an error naming the item.
+    let e = Exemplars::reencoded(&file, &shifted[..1], &v)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("source") && e.contains("not among"), "{e}");
+}
