@@ -8,6 +8,8 @@
 # stretched to 850; about 75 minutes), whose class heads are then fitted in
 # closed form (fit-heads) and whose style exemplars are written.
 #   scripts/frame_model.sh RUN_DIR [STEPS] [COND_STEPS] [MORE_STEPS]
+# ROOT_VELOCITY=heading trains the whole lineage with the root velocity in
+# the body's heading frame (docs/RESULTS.md, "Session 34"); default world.
 set -euo pipefail
 run=${1:?run folder}
 steps=${2:-550}
@@ -18,7 +20,8 @@ C=target/release/choreo
 cargo build --release --all-features --bins
 classes="--classify genre --classify dancer --classify situation --classify content --classify style"
 # Resumable: rerun with --resume (and --steps to reshape the schedule).
-$T frame --out "$run" --frames 200 --batch 6 --steps "$steps" --eval-every 100 $classes > "$run.table.json"
+$T frame --out "$run" --frames 200 --batch 6 --steps "$steps" --eval-every 100 $classes \
+    --root-velocity "${ROOT_VELOCITY:-world}" > "$run.table.json"
 $T frame --out "$run-cond" --init-from "$run" --cond-every --frames 200 --batch 6 --steps "$cond_steps" --lr 5e-4 --eval-every 100 $classes > /dev/null
 $T frame --out "$run-more" --init-from "$run-cond/export" --cond-every --frames 200 --batch 6 --steps 600 --lr 1e-4 --eval-every 100 --corpus-weight bandai=2 > /dev/null
 $T frame --out "$run-more" --resume --steps "$more_steps" > /dev/null
