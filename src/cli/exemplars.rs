@@ -102,94 +102,15 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
         a.kinds.clone()
     };
     let sequences = training_sequences(&vocab, &a.data)?;
-    if let Some(from) = &a.same_spans_as {
-        let ex = Exemplars::reencoded(from, &sequences, &vocab)
-            .with_context(|| format!("--same-spans-as {}", from.display()))?;
-        ex.save(&a.model).with_context(|| {
-            format!(
-                "writing {}",
-                a.model.join(choreo::lm::exemplars::FILE).display()
-            )
-        })?;
-        println!(
-            "{} exemplars re-encoded from {} into {}",
-            ex.len(),
-            from.display(),
-            a.model.join(choreo::lm::exemplars::FILE).display()
-        );
-        return Ok(());
-    }
-    let heads = m.class_kinds();
-    let by_heads = match a.choose.as_deref() {
-        Some("heads") if heads.is_empty() => {
-            bail!("--choose heads: the model has no class heads (fit them with choreo-train fit-heads)")
+    let ex = match &a.same_spans_as {
+        Some(from) => {
+            let ex = Exemplars::reencoded(from, &sequences, &vocab)
+                .with_context(|| format!("--same-spans-as {}", from.display()))?;
+            eprintln!("{} spans re-encoded from {}", ex.len(), from.display());
+            ex
         }
-        Some("heads") => true,
-        Some(_) => false,
-        None => !heads.is_empty(),
+        None => choose(&a, &m, &vocab, &kinds, &sequences)?,
     };
-    if by_heads {
-        let unjudged: Vec<&String> = kinds.iter().filter(|k| !heads.contains(k)).collect();
-        eprintln!(
-            "choosing spans by the model's class heads ({}){}",
-            heads.join(", "),
-            if unjudged.is_empty() {
-                String::new()
-            } else {
-                format!("; by name hash for {unjudged:?} (no head)")
-            }
-        );
-    }
-    let judge = |t: &[u32]| m.classify(t, 1);
-    let t0 = std::time::Instant::now();
-    if let Some(c) = &a.cover {
-        if !sequences.iter().any(|s| s.1.contains_key(c)) {
-            bail!("--cover {c}: no training sequence carries a {c} label");
-        }
-    }
-    let mut ex = Exemplars::build(
-        &sequences,
-        &vocab,
-        &kinds,
-        a.seconds,
-        a.per_label,
-        by_heads.then_some(&judge as &choreo::lm::exemplars::Judge<'_>),
-        SpanChoice {
-            cover: a.cover.as_deref(),
-            from_start: a.from_start,
-        },
-    )
-    .context("judging candidate spans")?;
-    if by_heads {
-        let ps: Vec<f64> = ex
-            .items
-            .iter()
-            .flat_map(|e| e.chosen_for.iter().filter_map(|c| c.p))
-            .collect();
-        eprintln!(
-            "judged in {:.0} s; mean probability of the chosen value {:.2} over {} choices",
-            t0.elapsed().as_secs_f64(),
-            ps.iter().sum::<f64>() / ps.len().max(1) as f64,
-            ps.len()
-        );
-    }
-    if ex.is_empty() {
-        bail!("--data: no training sequence carries a label of {kinds:?} the model knows");
-    }
-    // Named kinds replace only their own spans: the folder's other kinds
-    // keep theirs.
-    if !a.kinds.is_empty() {
-        let old = Exemplars::load(&a.model, &vocab).with_context(|| {
-            format!(
-                "reading the spans of other kinds from {} (remove it to start afresh)",
-                a.model.join(choreo::lm::exemplars::FILE).display()
-            )
-        })?;
-        if let Some(old) = old {
-            let kept = ex.keep_others(old, &kinds);
-            eprintln!("kept {kept} spans chosen for other kinds from the previous file");
-        }
-    }
     ex.save(&a.model).with_context(|| {
         format!(
             "writing {}",
@@ -220,4 +141,88 @@ pub fn run(a: ExemplarsArgs) -> Result<()> {
         summary.join(", ")
     );
     Ok(())
+}
+
+/// The spans `choreo exemplars` chooses (by the model's heads or by name
+/// hash), with the folder's spans for other kinds kept where `--kind`
+/// names only some.
+fn choose(
+    a: &ExemplarsArgs,
+    m: &MotionModel,
+    vocab: &choreo::tokenize::vocab::Vocabulary,
+    kinds: &[String],
+    sequences: &[(String, choreo::motion::Labels, Vec<u32>)],
+) -> Result<Exemplars> {
+    let heads = m.class_kinds();
+    let by_heads = match a.choose.as_deref() {
+        Some("heads") if heads.is_empty() => {
+            bail!("--choose heads: the model has no class heads (fit them with choreo-train fit-heads)")
+        }
+        Some("heads") => true,
+        Some(_) => false,
+        None => !heads.is_empty(),
+    };
+    if by_heads {
+        let unjudged: Vec<&String> = kinds.iter().filter(|k| !heads.contains(k)).collect();
+        eprintln!(
+            "choosing spans by the model's class heads ({}){}",
+            heads.join(", "),
+            if unjudged.is_empty() {
+                String::new()
+            } else {
+                format!("; by name hash for {unjudged:?} (no head)")
+            }
+        );
+    }
+    let judge = |t: &[u32]| m.classify(t, 1);
+    let t0 = std::time::Instant::now();
+    if let Some(c) = &a.cover {
+        if !sequences.iter().any(|s| s.1.contains_key(c)) {
+            bail!("--cover {c}: no training sequence carries a {c} label");
+        }
+    }
+    let mut ex = Exemplars::build(
+        sequences,
+        vocab,
+        kinds,
+        a.seconds,
+        a.per_label,
+        by_heads.then_some(&judge as &choreo::lm::exemplars::Judge<'_>),
+        SpanChoice {
+            cover: a.cover.as_deref(),
+            from_start: a.from_start,
+        },
+    )
+    .context("judging candidate spans")?;
+    if by_heads {
+        let ps: Vec<f64> = ex
+            .items
+            .iter()
+            .flat_map(|e| e.chosen_for.iter().filter_map(|c| c.p))
+            .collect();
+        eprintln!(
+            "judged in {:.0} s; mean probability of the chosen value {:.2} over {} choices",
+            t0.elapsed().as_secs_f64(),
+            ps.iter().sum::<f64>() / ps.len().max(1) as f64,
+            ps.len()
+        );
+    }
+    if ex.is_empty() {
+        bail!("--data: no training sequence carries a label of {kinds:?} the model knows");
+    }
+    // Named kinds replace only their own spans: the folder's other kinds
+    // keep theirs.
+    if !a.kinds.is_empty() {
+        let old = Exemplars::load(&a.model, vocab).with_context(|| {
+            format!(
+                "reading the spans of other kinds from {} (remove it to start afresh)",
+                a.model.join(choreo::lm::exemplars::FILE).display()
+            )
+        })?;
+        if let Some(old) = old {
+            let kept = ex.keep_others(old, kinds);
+            eprintln!("kept {kept} spans chosen for other kinds from the previous file");
+        }
+    }
+    Ok(ex)
 }

@@ -531,8 +531,6 @@ pub struct Chosen {
     pub p: Option<f64>,
 }
 
-/// A well-mixed index from a request's seed (consecutive seeds pick
-/// unrelated exemplars).
 /// A sequence's file name without its folders: the path it was read from
 /// is this machine's, and answers repeat it.
 fn file_name(name: &str) -> String {
@@ -541,6 +539,8 @@ fn file_name(name: &str) -> String {
         .map_or_else(|| name.to_string(), |f| f.to_string_lossy().into_owned())
 }
 
+/// A well-mixed index from a request's seed (consecutive seeds pick
+/// unrelated exemplars).
 fn splitmix(mut x: u64) -> u64 {
     x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
     x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
