@@ -89,6 +89,56 @@ fn corpus(v: &Vocabulary) -> data::Corpus {
     data::build(motions, v, 0.2, false, DataInfo::default()).unwrap()
 }
 
+/// `--chain-takes`: a corpus's training takes alike but for their take
+/// number become one sequence (bridged), held-out takes stay single, so
+/// validation is exactly `build`'s.
+#[test]
+fn alike_training_takes_chain_and_held_out_takes_stay_single() {
+    let v = vocab();
+    let motions = || -> Vec<(String, Motion)> {
+        (0..8)
+            .map(|i| {
+                let style = if i % 2 == 0 { "happy" } else { "sad" };
+                let mut m = sine_motion(120, i as f64 * 0.9, style);
+                m.labels.insert("take".into(), format!("{i:03}"));
+                ("synthetic".to_string(), m)
+            })
+            .collect()
+    };
+    let plain = data::build(motions(), &v, 0.25, false, DataInfo::default()).unwrap();
+    let chain = ["synthetic".to_string()];
+    let chained =
+        data::build_chained(motions(), &v, 0.25, false, DataInfo::default(), &chain).unwrap();
+    let names = |s: &[data::Sequence]| s.iter().map(|q| q.name.clone()).collect::<Vec<_>>();
+    assert_eq!(plain.val.len(), 2);
+    assert_eq!(names(&plain.val), names(&chained.val));
+    assert_eq!(plain.train.len(), 6);
+    // Six training takes of two styles: two chains, each one style's takes.
+    assert_eq!(chained.train.len(), 2);
+    let styles: Vec<_> = chained.train.iter().map(|s| s.labels["style"].clone()).collect();
+    assert!(styles.contains(&"happy".to_string()) && styles.contains(&"sad".to_string()));
+    assert!(chained.train.iter().all(|s| s.name.contains("alike takes")));
+    // A joined take enters somewhere in its first half, after a short
+    // bridge: the chains keep at least the first takes whole and the
+    // others' second halves, and add no more than a bridge a join.
+    let fl = v.frame_len();
+    let frames = |s: &[data::Sequence]| s.iter().map(|q| q.frames(fl)).sum::<usize>() as f64;
+    let joins = (plain.train.len() - chained.train.len()) as f64;
+    let (all, kept) = (frames(&plain.train), frames(&chained.train));
+    let take = all / plain.train.len() as f64;
+    let bridge = data::CHAIN_BRIDGE_S * v.fps;
+    assert!(
+        kept <= all + joins * (bridge + 2.0) && kept >= all - joins * (take / 2.0 + 2.0),
+        "{kept} frames chained of {all}, {joins} joins"
+    );
+    assert_eq!(chained.info.chained_takes, chain.to_vec());
+    // A corpus not named is left alone.
+    let other = ["bandai".to_string()];
+    let same =
+        data::build_chained(motions(), &v, 0.25, false, DataInfo::default(), &other).unwrap();
+    assert_eq!(names(&same.train), names(&plain.train));
+}
+
 fn trained(v: &Vocabulary, c: &data::Corpus, steps: usize) -> FrameNet {
     let dev = Device::Cpu;
     let net = FrameNet::new(config(v), &dev).unwrap();

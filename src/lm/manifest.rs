@@ -25,6 +25,11 @@ pub struct DataInfo {
     /// SHA-256 over the sorted (path, size) list of the files read.
     pub sha256: String,
     pub licences: Vec<String>,
+    /// Corpora whose training takes sharing every label but the take were
+    /// played one after another (`choreo-train --chain-takes`); absent =
+    /// none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub chained_takes: Vec<String>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -146,7 +146,29 @@ pub fn build(
     vocab: &Vocabulary,
     val_fraction: f64,
     mirror: bool,
+    info: DataInfo,
+) -> Result<Corpus> {
+    build_chained(motions, vocab, val_fraction, mirror, info, &[])
+}
+
+/// The seconds of SLERP that join two chained takes.
+pub const CHAIN_BRIDGE_S: f64 = 0.1;
+
+/// [`build`], with the training takes of each corpus named in `chain` that
+/// share every label but `take` (a Bandai content and style) played one after another
+/// as one sequence ([`Motion::chain`], joined by [`CHAIN_BRIDGE_S`]): a take
+/// that stops inside a window is followed by another like it, as in a
+/// rehearsal, instead of by the window's end. Held-out takes stay single,
+/// so validation is unchanged.
+///
+/// [`Motion::chain`]: crate::motion::Motion::chain
+pub fn build_chained(
+    motions: Vec<(String, crate::motion::Motion)>,
+    vocab: &Vocabulary,
+    val_fraction: f64,
+    mirror: bool,
     mut info: DataInfo,
+    chain: &[String],
 ) -> Result<Corpus> {
     let mut by: BTreeMap<String, Vec<crate::motion::Motion>> = BTreeMap::new();
     for (c, m) in motions {
@@ -155,7 +177,12 @@ pub fn build(
     let (mut train, mut val) = (Vec::new(), Vec::new());
     for (corpus, mut list) in by {
         list.sort_by_key(|m| crate::data::split_hash(&m.name));
-        let n_val = held_out_count(list.len(), val_fraction);
+        let mut n_val = held_out_count(list.len(), val_fraction);
+        if chain.contains(&corpus) {
+            let train_part = list.split_off(n_val.min(list.len()));
+            n_val = list.len();
+            list.extend(chain_alike(train_part));
+        }
         for (i, m) in list.into_iter().enumerate() {
             let name = m.name.clone();
             // Retarget / resample once; the tokens and the mirror share it.
@@ -199,6 +226,7 @@ pub fn build(
     if train.is_empty() {
         bail!("empty corpus: no training sequence after the split");
     }
+    info.chained_takes = chain.to_vec();
     info.train_sequences = train.len();
     info.val_sequences = val.len();
     info.train_tokens = train
@@ -206,6 +234,48 @@ pub fn build(
         .map(|s| s.tokens.len() + s.mirrored.as_ref().map_or(0, |m| m.len()))
         .sum();
     Ok(Corpus { train, val, info })
+}
+
+/// Takes sharing every label but their take number, each group chained in
+/// its (hash) order; a group that cannot chain (unlike skeletons) stays as
+/// single takes.
+fn chain_alike(takes: Vec<crate::motion::Motion>) -> Vec<crate::motion::Motion> {
+    let alike = |m: &crate::motion::Motion| {
+        let mut l = m.labels.clone();
+        l.remove("take");
+        l
+    };
+    let mut groups: Vec<Vec<crate::motion::Motion>> = Vec::new();
+    for m in takes {
+        match groups.iter_mut().find(|g| alike(&g[0]) == alike(&m)) {
+            Some(g) => g.push(m),
+            None => groups.push(vec![m]),
+        }
+    }
+    let (mut out, n_groups) = (Vec::new(), groups.len());
+    for g in groups {
+        if g.len() < 2 {
+            out.extend(g);
+            continue;
+        }
+        let bridge = (CHAIN_BRIDGE_S * g[0].fps).round() as usize;
+        match crate::motion::Motion::chain(&g, bridge) {
+            Ok(mut c) => {
+                c.name = format!("{} (+{} alike takes)", c.name, g.len() - 1);
+                out.push(c);
+            }
+            Err(e) => {
+                tracing::warn!("takes left unchained: {e}");
+                out.extend(g);
+            }
+        }
+    }
+    tracing::info!(
+        "chained takes: {} label groups, {} training sequences",
+        n_groups,
+        out.len()
+    );
+    out
 }
 
 /// One training or evaluation example before batching.

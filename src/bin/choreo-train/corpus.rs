@@ -83,7 +83,19 @@ pub(crate) fn load_corpus_as(
     if let Some(r) = root_velocity {
         vocab.root_velocity = r;
     }
-    let corpus = data::build(motions, &vocab, a.val_fraction, !a.no_mirror, info)?;
+    for c in &a.chain_takes {
+        if !a.corpora.contains(c) {
+            bail!("--chain-takes: {c:?} is not one of the corpora read (--corpus)");
+        }
+    }
+    let corpus = data::build_chained(
+        motions,
+        &vocab,
+        a.val_fraction,
+        !a.no_mirror,
+        info,
+        &a.chain_takes,
+    )?;
     Ok((vocab, corpus))
 }
 

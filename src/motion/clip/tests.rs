@@ -163,3 +163,60 @@ fn bad_values_are_rejected_with_field() {
     assert!(m.cut(2, 2).is_err());
     assert!(m.resample(0.0).is_err());
 }
+
+#[test]
+fn a_chained_take_goes_on_from_the_pose_and_path_where_the_last_one_ended() {
+    let whole = sine_clip(60, 30.0);
+    let j = whole.joints();
+    let a = whole.cut(0, 30).unwrap();
+    // The second take: frames 20..60 of the same clip, turned 100° about y
+    // and moved 5 m away, as a second capture of the same move would be.
+    let turn = axis_angle_to_quat([0.0, 100f64.to_radians(), 0.0]);
+    let tail = whole.cut(20, 60).unwrap();
+    let mut rots = tail.rotations.clone();
+    for f in 0..tail.frames() {
+        rots[f * j] = quat_to_axis_angle(quat_mul(turn, axis_angle_to_quat(rots[f * j])));
+    }
+    let trans = tail
+        .trans
+        .iter()
+        .map(|&t| add(quat_rotate(turn, t), [5.0, 0.0, -3.0]))
+        .collect();
+    let b = tail.with_data(trans, rots);
+    // No bridge: it enters after its pose nearest frame 29 (its frame 9)
+    // and the chain is the whole clip again.
+    let c = Motion::chain(&[a.clone(), b.clone()], 0).unwrap();
+    assert_eq!(c.frames(), 60);
+    for f in 0..60 {
+        assert!(norm(sub(c.trans[f], whole.trans[f])) < 1e-9, "frame {f}");
+        for k in 0..j {
+            let (x, y) = (c.rotations[f * j + k], whole.rotations[f * j + k]);
+            assert!(geodesic_axis_angle(x, y) < 1e-9, "frame {f} joint {k}");
+        }
+    }
+    // A 3-frame bridge goes on at the last step's speed and between the
+    // two poses.
+    let c = Motion::chain(&[a.clone(), b], 3).unwrap();
+    assert_eq!(c.frames(), 30 + 3 + 30);
+    assert_eq!(c.trans[..30].to_vec(), a.trans);
+    let step = sub(a.trans[29], a.trans[28]);
+    for f in 30..34 {
+        assert!(norm(sub(sub(c.trans[f], c.trans[f - 1]), step)) < 1e-9, "frame {f}");
+    }
+    let (ea, eb) = (a.rotations[29 * j + 18], whole.rotations[30 * j + 18]);
+    let mid = c.rotations[31 * j + 18];
+    assert!(geodesic_axis_angle(mid, ea) <= geodesic_axis_angle(ea, eb) + 1e-9);
+    assert!(geodesic_axis_angle(mid, eb) <= geodesic_axis_angle(ea, eb) + 1e-9);
+    // Unlike takes are refused, naming the take.
+    let other = Motion::new(
+        "other",
+        60.0,
+        Skeleton::smpl24(),
+        vec![[0.0; 3]],
+        vec![[0.0; 3]; 24],
+        Labels::new(),
+    )
+    .unwrap();
+    let e = Motion::chain(&[a, other], 3).unwrap_err().to_string();
+    assert!(e.contains("other") && e.contains("frame rate"), "{e}");
+}
