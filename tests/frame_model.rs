@@ -115,7 +115,11 @@ fn alike_training_takes_chain_and_held_out_takes_stay_single() {
     assert_eq!(plain.train.len(), 6);
     // Six training takes of two styles: two chains, each one style's takes.
     assert_eq!(chained.train.len(), 2);
-    let styles: Vec<_> = chained.train.iter().map(|s| s.labels["style"].clone()).collect();
+    let styles: Vec<_> = chained
+        .train
+        .iter()
+        .map(|s| s.labels["style"].clone())
+        .collect();
     assert!(styles.contains(&"happy".to_string()) && styles.contains(&"sad".to_string()));
     assert!(chained.train.iter().all(|s| s.name.contains("alike takes")));
     // A joined take enters somewhere in its first half, after a short

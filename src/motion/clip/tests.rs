@@ -201,7 +201,10 @@ fn a_chained_take_goes_on_from_the_pose_and_path_where_the_last_one_ended() {
     assert_eq!(c.trans[..30].to_vec(), a.trans);
     let step = sub(a.trans[29], a.trans[28]);
     for f in 30..34 {
-        assert!(norm(sub(sub(c.trans[f], c.trans[f - 1]), step)) < 1e-9, "frame {f}");
+        assert!(
+            norm(sub(sub(c.trans[f], c.trans[f - 1]), step)) < 1e-9,
+            "frame {f}"
+        );
     }
     let (ea, eb) = (a.rotations[29 * j + 18], whole.rotations[30 * j + 18]);
     let mid = c.rotations[31 * j + 18];
