@@ -155,11 +155,11 @@ pub fn build(
 pub const CHAIN_BRIDGE_S: f64 = 0.1;
 
 /// [`build`], with the training takes of each corpus named in `chain` that
-/// share every label but `take` (a Bandai content and style) played one after another
-/// as one sequence ([`Motion::chain`], joined by [`CHAIN_BRIDGE_S`]): a take
-/// that stops inside a window is followed by another like it, as in a
-/// rehearsal, instead of by the window's end. Held-out takes stay single,
-/// so validation is unchanged.
+/// share every label but `take` (a Bandai content and style) played one
+/// after another as one sequence ([`Motion::chain`], joined by
+/// [`CHAIN_BRIDGE_S`]): a run cut short by the capture volume goes on into
+/// the next take's, so a window can hold a longer pass than any one take.
+/// Held-out takes stay single, so validation is unchanged.
 ///
 /// [`Motion::chain`]: crate::motion::Motion::chain
 pub fn build_chained(
