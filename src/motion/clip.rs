@@ -452,10 +452,15 @@ impl Motion {
             )
         })?;
         let yaw = quat_between(fwd, [0.0, 0.0, 1.0]);
-        let o0 = self.skeleton.offsets[0];
-        let p0 = add(o0, self.trans[0]);
-        let c = [p0[0], 0.0, p0[2]];
-        let j = self.joints();
+        let p0 = add(self.skeleton.offsets[0], self.trans[0]);
+        Ok(self.turned(yaw, [p0[0], 0.0, p0[2]], [0.0; 3]))
+    }
+
+    /// The whole motion turned by `yaw` (a rotation about the vertical)
+    /// about the point `from`, which then moves to `to`: the root's
+    /// rotation and world path follow, every other joint is unchanged.
+    pub(crate) fn turned(&self, yaw: Quat, from: Vec3, to: Vec3) -> Motion {
+        let (o0, j) = (self.skeleton.offsets[0], self.joints());
         let mut rots = self.rotations.clone();
         for f in 0..self.frames() {
             let q = quat_mul(yaw, axis_angle_to_quat(rots[f * j]));
@@ -464,108 +469,13 @@ impl Motion {
         let trans = self
             .trans
             .iter()
-            .map(|&t| sub(quat_rotate(yaw, sub(add(o0, t), c)), o0))
+            .map(|&t| sub(add(quat_rotate(yaw, sub(add(o0, t), from)), to), o0))
             .collect();
-        Ok(self.with_data(trans, rots))
+        self.with_data(trans, rots)
     }
 }
 
 impl Motion {
-    /// Takes played one after another as one motion, each entering where
-    /// it best goes on from the last: the next take starts at the frame
-    /// after its pose nearest the chain's last pose (every joint but the
-    /// root; searched over its first half, the root's ground speed counted
-    /// too, in m/s against radians), is turned about the vertical to face
-    /// as the chain faces, and is placed where the root's last ground
-    /// velocity carries it over `bridge + 1` frames (its own height kept).
-    /// The `bridge` frames between SLERP every joint and lerp the root, so
-    /// a run goes on running and a still take stays still. The takes must
-    /// share the first one's joints and frame rate; the chain has its
-    /// skeleton, name and labels.
-    pub fn chain(takes: &[Motion], bridge: usize) -> Result<Motion, MotionError> {
-        let first = takes
-            .first()
-            .ok_or_else(|| MotionError::invalid("chain", "takes", "no take to chain"))?;
-        let j = first.joints();
-        let o0 = first.skeleton.offsets[0];
-        let facing = |m: &Motion, f: usize| {
-            m.facing(f).ok_or_else(|| {
-                MotionError::invalid(
-                    &m.name,
-                    "skeleton",
-                    "cannot tell which way the body faces (no left/right hips found)",
-                )
-            })
-        };
-        let ground = |p: Vec3| [p[0], 0.0, p[2]];
-        let (mut trans, mut rots) = (first.trans.clone(), first.rotations.clone());
-        for t in &takes[1..] {
-            if t.skeleton.parents != first.skeleton.parents || (t.fps - first.fps).abs() > 1e-9 {
-                return Err(MotionError::invalid(
-                    &t.name,
-                    "skeleton",
-                    format!(
-                        "its joints or frame rate differ from {}'s; only alike takes chain",
-                        first.name
-                    ),
-                ));
-            }
-            if t.frames() < 2 {
-                continue;
-            }
-            let last = trans.len() - 1;
-            let step = if last > 0 {
-                ground(sub(trans[last], trans[last - 1]))
-            } else {
-                [0.0; 3]
-            };
-            let to = |f: usize| norm(ground(sub(t.trans[f], t.trans[f - 1])));
-            let cost = |f: usize| {
-                let pose: f64 = (1..j)
-                    .map(|k| geodesic_axis_angle(rots[last * j + k], t.rot(f - 1, k)))
-                    .sum();
-                pose + (to(f) - norm(step)).abs() * t.fps
-            };
-            let entry = (1..=(t.frames() / 2).max(1))
-                .min_by(|&a, &b| cost(a).total_cmp(&cost(b)))
-                .unwrap_or(1);
-            let so_far = first.with_data(trans[last..].to_vec(), rots[last * j..].to_vec());
-            let (fa, fb) = (facing(&so_far, 0)?, facing(t, entry - 1)?);
-            let yaw = axis_angle_to_quat([0.0, cross(fb, fa)[1].atan2(dot(fb, fa)), 0.0]);
-            let end = add(o0, trans[last]);
-            let from = ground(add(t.skeleton.offsets[0], t.trans[entry]));
-            let at = add(ground(end), scale(step, (bridge + 1) as f64));
-            let next_trans: Vec<Vec3> = t.trans[entry..]
-                .iter()
-                .map(|&tr| {
-                    let p = add(t.skeleton.offsets[0], tr);
-                    sub(add(quat_rotate(yaw, sub(p, from)), at), o0)
-                })
-                .collect();
-            let mut next_rots = t.rotations[entry * j..].to_vec();
-            for f in 0..next_trans.len() {
-                let q = quat_mul(yaw, axis_angle_to_quat(next_rots[f * j]));
-                next_rots[f * j] = quat_to_axis_angle(q);
-            }
-            for i in 1..=bridge {
-                let a = i as f64 / (bridge + 1) as f64;
-                trans.push(lerp3(trans[last], next_trans[0], a));
-                for k in 0..j {
-                    let (qa, qb) = (
-                        axis_angle_to_quat(rots[last * j + k]),
-                        axis_angle_to_quat(next_rots[k]),
-                    );
-                    rots.push(quat_to_axis_angle(slerp(qa, qb, a)));
-                }
-            }
-            trans.extend(next_trans);
-            rots.extend(next_rots);
-        }
-        let out = first.with_data(trans, rots);
-        out.validate()?;
-        Ok(out)
-    }
-
     /// Repair single-frame capture glitches ("flips"): a run of at most
     /// `max_run` frames where a joint's rotation jumps more than
     /// `threshold` radians from the frame before the run while the frames on
@@ -605,6 +515,7 @@ impl Motion {
     }
 }
 
+mod chain;
 #[cfg(test)]
 pub(crate) mod tests;
 

@@ -69,11 +69,8 @@ struct DataArgs {
     /// Skip the left/right mirror augmentation.
     #[arg(long)]
     no_mirror: bool,
-    /// Train on this corpus's takes that share every label but the take
-    /// played one after another (each entering at the pose that best goes on
-    /// from the last, turned and moved to carry on its path, joined by 0.1 s
-    /// of SLERP), so a run cut short by the capture volume runs on; held-out
-    /// takes stay single. Repeatable (e.g. bandai).
+    /// Train on this corpus's alike takes played one after another
+    /// (`Motion::chain`); held-out takes stay single. Repeatable (bandai).
     #[arg(long = "chain-takes")]
     chain_takes: Vec<String>,
 }
