@@ -4,10 +4,13 @@
 Against a running `choreo serve` (docs/RESULTS.md, "Session 36"):
   scripts/gait_probe.py PORT TOKEN TAKE.bvh [--content walk] [--sampling JSON]
       [--seeds 0 1 2] [--choreo target/release/choreo]
+  scripts/gait_probe.py --real-only TAKE.bvh ...   (no server: the takes alone)
 
 - real: the take's knee flexion (the hip-knee-ankle angle from
   `choreo positions`, resampled to 20 fps), its range within each second and
-  its mean change a frame, and the change at the cut points below;
+  its mean change a frame, the median change and the share of frames whose
+  change passes 12 and 24 degrees (the bundled style and content
+  `max_jump` caps, in 1-degree bins), and the change at the cut points below;
 - continued: `POST /v1/generate` with the whole take as `seed_motion`, 200
   frames per seed; the generated knees' flexion (the norm of their
   axis-angle rotations), the same figures per second;
@@ -21,6 +24,7 @@ import base64
 import json
 import os
 import subprocess
+import sys
 import tempfile
 import urllib.request
 
@@ -70,8 +74,25 @@ def per_second(k):
             [float(d[i:i + FPS - 1].mean()) for i in spans])
 
 
+def real_summary(choreo, take):
+    real = real_knees(choreo, take)
+    rng, chg = per_second(real)
+    d = np.abs(np.diff(real, axis=0))
+    print(f"real {os.path.basename(take)}: range", " ".join(f"{x:.0f}" for x in rng), "| change",
+          " ".join(f"{x:.1f}" for x in chg), f"| median {np.median(d):.1f}, over 12: {100 * (d > 12).mean():.0f} %,"
+          f" over 24: {100 * (d > 24).mean():.0f} %")
+    return real
+
+
 def main():
     ap = argparse.ArgumentParser()
+    ap.add_argument("--real-only", nargs="+", metavar="TAKE", help="only the real takes' knee figures")
+    if "--real-only" in sys.argv:
+        ap.add_argument("--choreo", default="target/release/choreo")
+        a = ap.parse_args()
+        for take in a.real_only:
+            real_summary(a.choreo, take)
+        return
     ap.add_argument("port")
     ap.add_argument("token")
     ap.add_argument("take")
@@ -81,9 +102,7 @@ def main():
     ap.add_argument("--choreo", default="target/release/choreo")
     a = ap.parse_args()
     sampling = json.loads(a.sampling)
-    real = real_knees(a.choreo, a.take)
-    rng, chg = per_second(real)
-    print("real: range", " ".join(f"{x:.0f}" for x in rng), "| change", " ".join(f"{x:.1f}" for x in chg))
+    real = real_summary(a.choreo, a.take)
     for seed in a.seeds:
         rng, chg = per_second(generate(a.port, a.token, a.take, a.content, sampling, seed, 200))
         print(f"continued, seed {seed}: range", " ".join(f"{x:.0f}" for x in rng),
