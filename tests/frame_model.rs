@@ -264,6 +264,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         max_jump: 0,
         posture: 0.0,
         context: 0,
+        draws: 1,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;
@@ -295,6 +296,41 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         ..sampling.clone()
     };
     assert_eq!(run_with(&whole, &free), a, "context = the window: as 0");
+    // sampling.draws: several candidate frames, one kept; the same for one
+    // seed, another clip than one draw; greedy makes one candidate.
+    let four = Sampling {
+        draws: 4,
+        ..sampling.clone()
+    };
+    let d4 = run_with(&four, &free);
+    assert_eq!(d4, run_with(&four, &free), "one seed, one stream");
+    assert_ne!(d4, a);
+    let greedy = Sampling::default();
+    assert_eq!(
+        run_with(
+            &Sampling {
+                draws: 4,
+                ..greedy.clone()
+            },
+            &free
+        ),
+        run_with(&greedy, &free)
+    );
+    for bad in [0, choreo::lm::sampling::MAX_DRAWS + 1] {
+        let e = model
+            .generator(
+                &labels,
+                &[],
+                Sampling {
+                    draws: bad,
+                    ..sampling.clone()
+                },
+            )
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("sampling.draws") && e.contains("1 to 16"), "{e}");
+    }
     for (bad, says) in [
         (1, "at least 2"),
         (net.cfg.max_frames as u32 + 1, "at most"),
@@ -329,6 +365,11 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
     };
     let p = run(&forced);
     for (f, fr) in p.chunks_exact(fl).enumerate() {
+        assert_eq!(fr[9], 100 + (f % 7) as u32);
+    }
+    // With candidate frames too: every candidate keeps the forced slots.
+    let p4 = run_with(&four, &forced);
+    for (f, fr) in p4.chunks_exact(fl).enumerate() {
         assert_eq!(fr[9], 100 + (f % 7) as u32);
     }
     // max_jump: no slot moves further a frame (the shorter way round);
@@ -665,6 +706,14 @@ fn bad_frame_manifests_are_clear_errors() {
             format!("sampling_by_kind.{}.posture", kinds[0]),
         ),
         (
+            serde_json::json!({kinds[0].clone(): {"draws": 0}}),
+            format!("sampling_by_kind.{}.draws", kinds[0]),
+        ),
+        (
+            serde_json::json!({kinds[0].clone(): {"draws": 17}}),
+            format!("sampling_by_kind.{}.draws", kinds[0]),
+        ),
+        (
             serde_json::json!({kinds[0].clone(): {"temp": 2.0}}),
             "temp".to_string(),
         ),
@@ -672,9 +721,20 @@ fn bad_frame_manifests_are_clear_errors() {
         let e = with_s(bad.clone()).err().unwrap().to_string();
         assert!(e.contains(&field), "{bad}: {e}");
     }
-    let m4 = with_s(serde_json::json!({kinds[0].clone(): {"top_p": 0.8}})).unwrap();
+    let m4 = with_s(serde_json::json!({kinds[0].clone(): {"top_p": 0.8, "draws": 3}})).unwrap();
     let d = m4.kind_sampling([&other, &kinds[0]]);
-    assert_eq!((d.top_p, d.posture), (Some(0.8), None));
+    assert_eq!((d.top_p, d.posture, d.draws), (Some(0.8), None, Some(3)));
+    // A request naming no draws gets the kind's; one naming it keeps its own.
+    let mut s = choreo::lm::sampling::RECOMMENDED;
+    m4.fill_defaults([&kinds[0]], &mut s, Default::default());
+    assert_eq!(s.draws, 3);
+    let mut s = choreo::lm::sampling::RECOMMENDED;
+    let named = choreo::lm::model::Named {
+        draws: true,
+        ..Default::default()
+    };
+    m4.fill_defaults([&kinds[0]], &mut s, named);
+    assert_eq!(s.draws, 1);
     assert_eq!(m4.kind_sampling([&other]), Default::default());
     let mut labels = Labels::new();
     labels.insert("style".into(), "furious".into());

@@ -177,6 +177,7 @@ fn streaming_equals_one_shot_and_decodes_to_valid_motion() {
         max_jump: 0,
         posture: 0.0,
         context: 0,
+        draws: 1,
     };
     // 11 frames: the window (4) slides several times.
     let run = |n: usize| {

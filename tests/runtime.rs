@@ -150,6 +150,7 @@ fn an_ort_stream_is_the_one_shot_output_for_one_seed() {
         max_jump: 0,
         posture: 0.0,
         context: 0,
+        draws: 1,
     };
     // Past the context, so the window slides.
     let n = 2 * model.context_frames() + 3;

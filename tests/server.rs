@@ -610,6 +610,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             max_jump: 0,
             posture: 0.0,
             context: 0,
+            draws: 0,
         }),
         exemplar: String::new(),
         candidates: 0,
@@ -874,7 +875,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     let gz = gz.output.unwrap().rotations;
     assert!(gz.iter().zip(&zr).all(|(a, b)| (a - b).abs() < 1e-12));
 
-    // keep_near, max_jump, posture and context over both transports: the same
+    // keep_near, max_jump, posture, context and draws over both transports: the same
     // frames; out of range is a 400 naming the field (gRPC's max_jump 0 =
     // the recommended limit, as REST's absent field). The bundled model's
     // postures.json has the genre's posture.
@@ -884,6 +885,8 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         ("posture", 1.5, 11.0),
         // 8 frames of history: the window slides within the 24 frames.
         ("context", 8.0, 201.0),
+        // Two candidate frames a frame (the recommended count is another).
+        ("draws", 2.0, 17.0),
     ] {
         let mut g = greq.clone();
         let gs = g.sampling.as_mut().unwrap();
@@ -898,6 +901,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             "keep_near" => gs.keep_near = ok as u32,
             "max_jump" => gs.max_jump = ok as u32,
             "context" => gs.context = ok as u32,
+            "draws" => gs.draws = ok as u32,
             _ => gs.posture = ok,
         }
         let g = client.generate(g).await.unwrap().into_inner();
@@ -952,34 +956,41 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     // content, the smaller cap for both and the first kind's posture, else
     // the recommended 48; top_p 1 and posture 2 for AIST++'s genre, else
     // 0.95 and none), and the answer says which sampling ran.
-    for (labels, sampling, (want, top_p, posture)) in [
-        (json!({"style": "angry"}), json!(null), (12, 0.95, 1.5)),
-        (json!({"content": "walk"}), json!(null), (24, 0.95, 2.0)),
+    // Bandai's style also draws 4 candidate frames a frame (draws), the
+    // others 1.
+    for (labels, sampling, (want, top_p, posture, draws)) in [
+        (json!({"style": "angry"}), json!(null), (12, 0.95, 1.5, 4)),
+        (json!({"content": "walk"}), json!(null), (24, 0.95, 2.0, 1)),
         (
             json!({"content": "walk", "style": "angry"}),
             json!(null),
-            (12, 0.95, 2.0),
+            (12, 0.95, 2.0, 4),
         ),
-        (json!({"genre": "BR"}), json!(null), (48, 1.0, 2.0)),
+        (json!({"genre": "BR"}), json!(null), (48, 1.0, 2.0, 1)),
         (
             json!({"style": "angry", "genre": "BR"}),
             json!({"seed": 3}),
-            (12, 1.0, 2.0),
+            (12, 1.0, 2.0, 4),
         ),
         (
             json!({"style": "angry"}),
             json!({"max_jump": 30, "posture": 0}),
-            (30, 0.95, 0.0),
+            (30, 0.95, 0.0, 4),
+        ),
+        (
+            json!({"style": "angry"}),
+            json!({"draws": 1}),
+            (12, 0.95, 1.5, 1),
         ),
         (
             json!({"genre": "BR"}),
             json!({"top_p": 0.9}),
-            (48, 0.9, 2.0),
+            (48, 0.9, 2.0, 1),
         ),
         (
             json!({"genre": "BR"}),
             json!({"posture": 0}),
-            (48, 1.0, 0.0),
+            (48, 1.0, 0.0, 1),
         ),
     ] {
         let mut req = json!({"labels": labels, "frames": 4});
@@ -993,6 +1004,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         assert_eq!(status, 200, "{r}");
         let s = &r["sampling"];
         assert_eq!(s["max_jump"], want, "{labels}: {s}");
+        assert_eq!(s["draws"], draws, "{labels}: {s}");
         assert_eq!(
             (s["top_p"].as_f64(), s["posture"].as_f64()),
             (Some(top_p), Some(posture)),
@@ -1007,10 +1019,10 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     // Over gRPC, a request with no sampling: Bandai's style gets max_jump
     // 12 and posture 1.5, its content max_jump 24 and posture 2, AIST++'s
     // genre max_jump 48, top_p 1 and posture 2.
-    for (kind, value, want) in [
-        ("style", "angry", (12, 0.95, 1.5)),
-        ("content", "walk", (24, 0.95, 2.0)),
-        ("genre", "BR", (48, 1.0, 2.0)),
+    for (kind, value, want, draws) in [
+        ("style", "angry", (12, 0.95, 1.5), 4),
+        ("content", "walk", (24, 0.95, 2.0), 1),
+        ("genre", "BR", (48, 1.0, 2.0), 1),
     ] {
         let g = client
             .generate(pb::GenerateRequest {
@@ -1026,6 +1038,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         let s = g.sampling.expect("gRPC answer's sampling");
         assert_eq!((s.keep_near, s.temperature), (2, 1.0));
         assert_eq!((s.max_jump, s.top_p, s.posture), want, "{kind}");
+        assert_eq!(s.draws, draws, "{kind}");
     }
 
     // Streaming gives the one-shot frames, one message each.
@@ -1168,18 +1181,18 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .await
     .unwrap();
     for want in [
-        // The prompt request, the top_p 0, keep_near, max_jump, posture and
-        // context ones, the eight per-kind defaults; the 400s: the bad
-        // exemplar, the bad feet, keep_near 65, max_jump 181, posture 11,
-        // context 201, the bad label and the over-long request; over gRPC
-        // the prompt request, best of 3, steered, root model and feet, feet
-        // pinned, exemplar none, top_p 0, keep_near 1, max_jump 2, posture
-        // 1.5, context 8, the style, content and genre defaults; a steered
-        // stream, a feet stream, a pinned stream, and a stream asking for 2
-        // candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 14",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 8",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 15",
+        // The prompt request, the top_p 0, keep_near, max_jump, posture,
+        // context and draws ones, the nine per-kind defaults; the 400s: the
+        // bad exemplar, the bad feet, keep_near 65, max_jump 181, posture
+        // 11, context 201, draws 17, the bad label and the over-long
+        // request; over gRPC the prompt request, best of 3, steered, root
+        // model and feet, feet pinned, exemplar none, top_p 0, keep_near 1,
+        // max_jump 2, posture 1.5, context 8, draws 2, the style, content
+        // and genre defaults; a steered stream, a feet stream, a pinned
+        // stream, and a stream asking for 2 candidates refused.
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 16",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 9",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 16",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 4",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",

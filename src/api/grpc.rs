@@ -78,6 +78,7 @@ impl Choreo for ChoreoGrpc {
                     r.sampling.posture
                 },
                 context: r.sampling.context,
+                draws: r.sampling.draws,
             }),
         }))
     }

@@ -88,6 +88,7 @@ pub fn run(
             max_jump: 0,
             posture: 0.0,
             context: 0,
+            draws: 1,
         },
     )?;
     let mut lat = Vec::with_capacity(frames);
@@ -128,6 +129,7 @@ pub fn run(
                 max_jump: 0,
                 posture: 0.0,
                 context: 0,
+                draws: 1,
             },
         )?;
         let mut lat = Vec::with_capacity(n);

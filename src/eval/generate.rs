@@ -94,6 +94,7 @@ pub fn sampling_name(s: &Sampling) -> String {
         ("max_jump", s.max_jump as f64, 0.0),
         ("posture", s.posture, 0.0),
         ("context", s.context as f64, 0.0),
+        ("draws", s.draws as f64, 1.0),
     ];
     let mut name = format!("t={} top_k={} top_p={}", s.temperature, s.top_k, s.top_p);
     for (field, value, off) in extras {

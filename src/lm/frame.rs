@@ -242,7 +242,7 @@ pub struct FrameManifest {
     /// (docs/RESULTS.md, "Sampling defaults per label kind").
     #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub max_jump_by_kind: std::collections::BTreeMap<String, u32>,
-    /// The `top_p` and `posture` a request gets when it names them not,
+    /// The `top_p`, `posture` and `draws` a request gets when it names them not,
     /// per label kind it asks for (the first of its kinds, in name order,
     /// that lists the field; none: the recommended sampling's). `choreo
     /// eval generate` scores them per corpus (docs/RESULTS.md, "AIST++ dance: the
@@ -259,6 +259,9 @@ pub struct KindSampling {
     pub top_p: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub posture: Option<f64>,
+    /// Candidate frames a frame (`sampling.draws`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub draws: Option<u32>,
 }
 
 pub const FRAME_KIND: &str = "motion-frame-lm";
@@ -397,6 +400,14 @@ impl FrameManifest {
                     &name,
                     format!("{field}.posture"),
                     format!("{w} (want 0 to 10)"),
+                ));
+            }
+            let most = super::sampling::MAX_DRAWS;
+            if let Some(n) = d.draws.filter(|n| !(1..=most).contains(n)) {
+                return Err(super::LmError::invalid(
+                    &name,
+                    format!("{field}.draws"),
+                    format!("{n} (want 1 to {most})"),
                 ));
             }
         }

@@ -25,6 +25,7 @@ pub struct Named {
     pub max_jump: bool,
     pub top_p: bool,
     pub posture: bool,
+    pub draws: bool,
 }
 
 /// A loaded motion model of either kind: immutable, shared by requests.
@@ -93,7 +94,7 @@ impl MotionModel {
     }
 
     /// Fills in what a request for these label kinds did not name of
-    /// `max_jump`, `top_p` and `posture`: the model's defaults for those
+    /// `max_jump`, `top_p`, `posture` and `draws`: the model's defaults for those
     /// kinds ([`Self::default_max_jump`], [`Self::kind_sampling`]). The
     /// service and `choreo eval generate --sampling default` both go
     /// through here, so what is measured as the default is what a request
@@ -112,9 +113,12 @@ impl MotionModel {
         if let (false, Some(w)) = (named.posture, d.posture) {
             s.posture = w;
         }
+        if let (false, Some(n)) = (named.draws, d.draws) {
+            s.draws = n;
+        }
     }
 
-    /// The `top_p` and `posture` defaults for a request asking for these
+    /// The `top_p`, `posture` and `draws` defaults for a request asking for these
     /// label kinds and naming them not: per field, the first kind (in the
     /// order given) the manifest's `sampling_by_kind` lists it for.
     pub fn kind_sampling<'a>(
@@ -129,6 +133,7 @@ impl MotionModel {
             {
                 out.top_p = out.top_p.or(d.top_p);
                 out.posture = out.posture.or(d.posture);
+                out.draws = out.draws.or(d.draws);
             }
         }
         out

@@ -41,6 +41,16 @@ pub struct Sampling {
     /// clip holds its label longer, and moves less (docs/RESULTS.md, "A shorter
     /// history holds the label").
     pub context: u32,
+    /// Frame model only: candidate frames drawn for each frame (each slot
+    /// by the settings above), of which the one whose surprise under the
+    /// model (nats, summed over its drawn slots) lies nearest its
+    /// expectation (the slots' summed entropies, each given the slots
+    /// drawn before it) is kept: a frame typical of the model, neither
+    /// its likeliest (which stills the body: 49 % of 1 s windows frozen
+    /// when the likeliest of 4 is kept) nor one where several slots fell
+    /// in their tails at once (jitter). 1 = plain drawing; each candidate
+    /// costs a pass of the local decoder (docs/RESULTS.md, "Session 37").
+    pub draws: u32,
 }
 
 impl Default for Sampling {
@@ -55,6 +65,7 @@ impl Default for Sampling {
             max_jump: 0,
             posture: 0.0,
             context: 0,
+            draws: 1,
         }
     }
 }
@@ -82,7 +93,11 @@ pub const RECOMMENDED: Sampling = Sampling {
     max_jump: 48,
     posture: 0.0,
     context: 0,
+    draws: 1,
 };
+
+/// The most candidate frames `sampling.draws` may ask for.
+pub const MAX_DRAWS: u32 = 16;
 
 impl Sampling {
     /// [`RECOMMENDED`] with this seed.
@@ -127,6 +142,13 @@ impl Sampling {
                 "request",
                 "sampling.context",
                 "1 (want 0 = the model's whole window, or at least 2 frames)",
+            ));
+        }
+        if !(1..=MAX_DRAWS).contains(&self.draws) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.draws",
+                format!("{} (want 1 to {MAX_DRAWS}; 1 = plain drawing)", self.draws),
             ));
         }
         if self.max_jump > 180 {

@@ -79,7 +79,7 @@ pub fn motion_pb(m: &Motion) -> pb::Motion {
     }
 }
 
-/// Which of `max_jump`, `top_p` and `posture` a request named (proto3: 0
+/// Which of `max_jump`, `top_p`, `posture` and `draws` a request named (proto3: 0
 /// = not named; an explicit setting, any of temperature, top_k, top_p or
 /// keep_near set, names its top_p, 0 there meaning no cut).
 pub(super) fn named(s: &Option<pb::Sampling>) -> crate::service::generate::Named {
@@ -89,6 +89,7 @@ pub(super) fn named(s: &Option<pb::Sampling>) -> crate::service::generate::Named
         max_jump: s.max_jump != 0,
         top_p: explicit(s),
         posture: s.posture != 0.0,
+        draws: s.draws != 0,
     }
 }
 
@@ -121,12 +122,15 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.posture.max(0.0)
     };
+    // 0 = the recommended count of candidate frames.
+    let draws = if s.draws == 0 { r.draws } else { s.draws };
     if !explicit(&s) {
         return crate::lm::Sampling {
             guidance,
             max_jump,
             posture,
             context: s.context,
+            draws,
             ..r
         };
     }
@@ -140,6 +144,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         max_jump,
         posture,
         context: s.context,
+        draws,
     }
 }
 

@@ -197,6 +197,12 @@ pub struct SamplingJson {
     /// Frames of history the frame model reads (0 or absent = its whole
     /// window).
     pub context: Option<u32>,
+    /// Candidate frames drawn for each frame, the one most typical of the
+    /// model kept (frame model; 1 = plain drawing); absent = the
+    /// model's default for the label kinds asked for (its manifest's
+    /// `sampling_by_kind`), else the recommended count (1), with or
+    /// without a temperature.
+    pub draws: Option<u32>,
 }
 
 impl SamplingJson {
@@ -207,6 +213,7 @@ impl SamplingJson {
             max_jump: self.max_jump.is_some(),
             top_p: self.top_p.is_some() || self.temperature.is_some(),
             posture: self.posture.is_some(),
+            draws: self.draws.is_some(),
         }
     }
 
@@ -225,6 +232,7 @@ impl SamplingJson {
                 max_jump: self.max_jump.unwrap_or(r.max_jump),
                 posture: self.posture.unwrap_or(r.posture),
                 context: self.context.unwrap_or(r.context),
+                draws: self.draws.unwrap_or(r.draws),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -237,6 +245,7 @@ impl SamplingJson {
                 max_jump: self.max_jump.unwrap_or(r.max_jump),
                 posture: self.posture.unwrap_or(r.posture),
                 context: self.context.unwrap_or(r.context),
+                draws: self.draws.unwrap_or(r.draws),
             },
         }
     }
