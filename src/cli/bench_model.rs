@@ -75,17 +75,11 @@ pub fn run(
         window = serde_json::json!({"window_frames": s.config().max_frames, "window_forward_ms": per * 1e3});
     }
     // Streaming: per-frame latency over `frames` frames (window slides).
+    // Temperature 1, nothing cut, one candidate a frame.
     let g_sampling = Sampling {
         temperature: 1.0,
-        top_k: 0,
-        top_p: 1.0,
         seed: 1,
-        guidance: 1.0,
-        keep_near: 0,
-        max_jump: 0,
-        posture: 0.0,
-        context: 0,
-        draws: 1,
+        ..Sampling::default()
     };
     let mut g = model.generator(&Default::default(), &[], g_sampling.clone())?;
     let mut lat = Vec::with_capacity(frames);
@@ -141,16 +135,8 @@ pub fn run(
             &Default::default(),
             joints,
             Sampling {
-                temperature: 1.0,
-                top_k: 0,
                 top_p: 0.95,
-                seed: 1,
-                guidance: 1.0,
-                keep_near: 0,
-                max_jump: 0,
-                posture: 0.0,
-                context: 0,
-                draws: 1,
+                ..g_sampling.clone()
             },
         )?;
         let mut lat = Vec::with_capacity(n);
