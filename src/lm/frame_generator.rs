@@ -268,10 +268,9 @@ impl FrameGenerator {
             cands.push(self.draw_frame(
                 &session,
                 forced,
-                &vel,
-                &prev,
-                p1.as_deref(),
+                (&vel, &prev, p1.as_deref()),
                 pull.as_ref(),
+                n > 1,
             )?);
         }
         let mut frame = most_typical(cands);
@@ -337,15 +336,16 @@ impl FrameGenerator {
     /// change head's; an escape also pays the absolute head's share among
     /// the bins outside the change window) and that surprise's expectation
     /// (the summed entropies of the slots' distributions, given the slots
-    /// drawn before them). Forced slots count in neither.
+    /// drawn before them). Forced slots count in neither, and nothing
+    /// does unless `score` (a lone candidate needs no score: plain
+    /// drawing pays nothing for it).
     fn draw_frame(
         &mut self,
         session: &FrameSession,
         forced: &[Option<u32>],
-        vel: &[u32],
-        prev: &[u32],
-        p1: Option<&[u32]>,
+        (vel, prev, p1): (&[u32], &[u32], Option<&[u32]>),
         pull: Option<&super::posture::FramePull<'_>>,
+        score: bool,
     ) -> Result<(Vec<u32>, f64, f64), LmError> {
         let c = session.config();
         let mut local = session.new_local_cache();
@@ -374,9 +374,12 @@ impl FrameGenerator {
                         p1.map(|p| p[s]),
                         c.wraps(s),
                     );
-                    let (nll, h) = surprise_of(c, (out.data(0), out.data(1)), p1.map(|p| p[s]), t);
-                    surprise += nll;
-                    expected += h;
+                    if score {
+                        let (nll, h) =
+                            surprise_of(c, (out.data(0), out.data(1)), p1.map(|p| p[s]), t);
+                        surprise += nll;
+                        expected += h;
+                    }
                     t
                 }
             };
