@@ -273,7 +273,7 @@ impl FrameGenerator {
                 n > 1,
             )?);
         }
-        let mut frame = most_typical(cands);
+        let mut frame = super::typical::most_typical(cands);
         // The global window: when full, keep the last half, whose cache
         // (`next`) was filled as those frames came; then feed the frame.
         let m = window_len(&c, &self.sampling);
@@ -375,8 +375,12 @@ impl FrameGenerator {
                         c.wraps(s),
                     );
                     if score {
-                        let (nll, h) =
-                            surprise_of(c, (out.data(0), out.data(1)), p1.map(|p| p[s]), t);
+                        let (nll, h) = super::typical::surprise_of(
+                            c,
+                            (out.data(0), out.data(1)),
+                            p1.map(|p| p[s]),
+                            t,
+                        );
                         surprise += nll;
                         expected += h;
                     }
@@ -388,66 +392,6 @@ impl FrameGenerator {
         }
         Ok((frame, surprise, expected))
     }
-}
-
-/// Of candidate frames (tokens, surprise, expected surprise), the one whose
-/// surprise lies nearest its expectation (the first such on a tie).
-fn most_typical(cands: Vec<(Vec<u32>, f64, f64)>) -> Vec<u32> {
-    let mut best: Option<(f64, Vec<u32>)> = None;
-    for (frame, surprise, expected) in cands {
-        let off = (surprise - expected).abs();
-        if best.as_ref().map_or(true, |b| off < b.0) {
-            best = Some((off, frame));
-        }
-    }
-    best.expect("at least one candidate").1
-}
-
-fn log_softmax(x: &[f32]) -> Vec<f64> {
-    let m = x.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b)) as f64;
-    let z: f64 = x.iter().map(|&v| (v as f64 - m).exp()).sum();
-    let lz = m + z.ln();
-    x.iter().map(|&v| v as f64 - lz).collect()
-}
-
-fn entropy(lp: &[f64]) -> f64 {
-    lp.iter()
-        .map(|&l| if l.is_finite() { -l.exp() * l } else { 0.0 })
-        .sum()
-}
-
-/// A drawn token's surprise (nats) under the model's unmodified
-/// distribution, and that distribution's entropy.
-fn surprise_of(
-    c: &FrameConfig,
-    (rel, abs): (&[f32], &[f32]),
-    p1: Option<u32>,
-    tok: u32,
-) -> (f64, f64) {
-    let Some(p) = p1 else {
-        let lp = log_softmax(abs);
-        return (-lp[tok as usize], entropy(&lp));
-    };
-    let r0 = c.radius as i64;
-    let lr = log_softmax(&rel[..c.rel_classes()]);
-    let h = entropy(&lr);
-    let k = c.change(Some(p), tok) as usize;
-    if k != c.esc() as usize {
-        return (-lr[k], h);
-    }
-    let outside: Vec<f32> = abs
-        .iter()
-        .enumerate()
-        .map(|(b, &x)| {
-            if (b as i64 - p as i64).abs() <= r0 {
-                f32::NEG_INFINITY
-            } else {
-                x
-            }
-        })
-        .collect();
-    let la = log_softmax(&outside);
-    (-lr[k] - la[tok as usize], h)
 }
 
 /// A slot's token: a change from the previous frame's token (or an
@@ -546,46 +490,6 @@ fn escapable(p: i64, r0: i64, jump: i64, bins: i64, wraps: bool) -> bool {
 
 #[cfg(test)]
 mod tests {
-    #[test]
-    fn surprise_is_the_change_heads_or_the_escapes_and_its_expectation_the_entropy() {
-        let c = super::super::frame::test_config();
-        let rel = vec![0.0f32; c.rel_classes()];
-        let abs = vec![0.0f32; c.bins];
-        let uniform_rel = (c.rel_classes() as f64).ln();
-        // A change inside the window: that class's surprise.
-        let (nll, h) = super::surprise_of(&c, (&rel, &abs), Some(100), 103);
-        assert!((nll - uniform_rel).abs() < 1e-9 && (h - uniform_rel).abs() < 1e-9);
-        // An escape: the escape class's, plus the absolute head's share among
-        // the bins outside the change window (360 − 17 of them).
-        let outside = (c.bins - (2 * c.radius + 1)) as f64;
-        let (nll, _) = super::surprise_of(&c, (&rel, &abs), Some(100), 150);
-        assert!((nll - (uniform_rel + outside.ln())).abs() < 1e-9, "{nll}");
-        // No previous frame: the absolute head alone.
-        let (nll, h) = super::surprise_of(&c, (&rel, &abs), None, 7);
-        assert!((nll - (c.bins as f64).ln()).abs() < 1e-9 && (h - nll).abs() < 1e-9);
-        // A peaked head: the likeliest change surprises less than the
-        // entropy, a rare one more.
-        let mut peaked = rel.clone();
-        peaked[c.radius] = 5.0;
-        let (likely, h) = super::surprise_of(&c, (&peaked, &abs), Some(100), 100);
-        let (rare, _) = super::surprise_of(&c, (&peaked, &abs), Some(100), 104);
-        assert!(likely < h && rare > h, "{likely} {h} {rare}");
-    }
-
-    #[test]
-    fn the_kept_frame_is_the_one_nearest_its_expected_surprise() {
-        // Not the likeliest (surprise 2 of 10 expected), nor the one with
-        // tails at once (19): the typical one (11).
-        let cands = vec![
-            (vec![1], 2.0, 10.0),
-            (vec![2], 19.0, 10.0),
-            (vec![3], 11.0, 10.0),
-            (vec![4], 8.5, 10.0),
-        ];
-        assert_eq!(super::most_typical(cands), vec![3]);
-        assert_eq!(super::most_typical(vec![(vec![7], 0.0, 50.0)]), vec![7]);
-    }
-
     use super::*;
 
     #[test]

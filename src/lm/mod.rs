@@ -33,6 +33,7 @@ pub mod posture;
 pub mod runtime;
 pub mod sampling;
 pub mod steer;
+pub mod typical;
 
 pub use generate::{classify, forced_frames, prompt_slots, FrameDecoder, Generator};
 pub use manifest::Manifest;
