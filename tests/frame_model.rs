@@ -265,6 +265,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         posture: 0.0,
         context: 0,
         draws: 1,
+        pace: 0.0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;
@@ -316,6 +317,47 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         ),
         run_with(&greedy, &free)
     );
+    // sampling.pace holds the pace of the motion continued: with no seed
+    // motion there is none to hold and the clip is the plain 4-draw one;
+    // continuing one, it keeps other candidates (the same for one seed).
+    let paced = Sampling {
+        pace: 10.0,
+        ..four.clone()
+    };
+    assert_eq!(run_with(&paced, &free), d4, "no seed, nothing to hold");
+    let seed_motion = a[..8 * fl].to_vec();
+    let go_on = |s: &Sampling| -> Vec<u32> {
+        let mut g = model.generator(&labels, &seed_motion, s.clone()).unwrap();
+        (0..n)
+            .flat_map(|f| g.next_frame(&free(f)).unwrap())
+            .collect()
+    };
+    let held = go_on(&paced);
+    assert_eq!(held, go_on(&paced), "one seed, one stream");
+    assert_ne!(held, go_on(&four), "the hold chooses other candidates");
+    for (bad, says) in [
+        (
+            Sampling {
+                pace: 10.0,
+                ..sampling.clone()
+            },
+            "sampling.draws 2 or more",
+        ),
+        (
+            Sampling {
+                pace: 101.0,
+                ..four.clone()
+            },
+            "0 to 100",
+        ),
+    ] {
+        let e = model
+            .generator(&labels, &seed_motion, bad)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("sampling.pace") && e.contains(says), "{e}");
+    }
     for bad in [0, choreo::lm::sampling::MAX_DRAWS + 1] {
         let e = model
             .generator(
@@ -714,6 +756,10 @@ fn bad_frame_manifests_are_clear_errors() {
             format!("sampling_by_kind.{}.draws", kinds[0]),
         ),
         (
+            serde_json::json!({kinds[0].clone(): {"pace": 101.0}}),
+            format!("sampling_by_kind.{}.pace", kinds[0]),
+        ),
+        (
             serde_json::json!({kinds[0].clone(): {"temp": 2.0}}),
             "temp".to_string(),
         ),
@@ -736,6 +782,22 @@ fn bad_frame_manifests_are_clear_errors() {
     m4.fill_defaults([&kinds[0]], &mut s, named);
     assert_eq!(s.draws, 1);
     assert_eq!(m4.kind_sampling([&other]), Default::default());
+    // A kind's pace hold comes with its draws; a request that names one
+    // draw gets none (nothing to choose among), one naming its pace keeps it.
+    let m5 = with_s(serde_json::json!({kinds[0].clone(): {"draws": 4, "pace": 5.0}})).unwrap();
+    let mut s = choreo::lm::sampling::RECOMMENDED;
+    m5.fill_defaults([&kinds[0]], &mut s, Default::default());
+    assert_eq!((s.draws, s.pace), (4, 5.0));
+    let mut s = choreo::lm::sampling::RECOMMENDED;
+    m5.fill_defaults([&kinds[0]], &mut s, named);
+    assert_eq!((s.draws, s.pace), (1, 0.0));
+    let mut s = choreo::lm::sampling::RECOMMENDED;
+    let named_pace = choreo::lm::model::Named {
+        pace: true,
+        ..Default::default()
+    };
+    m5.fill_defaults([&kinds[0]], &mut s, named_pace);
+    assert_eq!((s.draws, s.pace), (4, 0.0));
     let mut labels = Labels::new();
     labels.insert("style".into(), "furious".into());
     let dir2 = export(&net, &v);
@@ -859,6 +921,21 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
             "{ax:?}"
         );
         assert_eq!(ax.top_features.len(), 3);
+        // Real training takes at the generated length: one clip per
+        // value, real motion, so smooth as the held-out takes are.
+        let rc = r.real_chained.as_ref().unwrap();
+        assert_eq!(rc.clips, r.labels, "{rc:?}");
+        assert!(
+            rc.fid_k.is_some_and(|x| x.is_finite() && x >= 0.0),
+            "{rc:?}"
+        );
+        assert!(
+            rc.fid_g.is_some_and(|x| x.is_finite() && x >= 0.0),
+            "{rc:?}"
+        );
+        assert!((0.5..2.0).contains(&rc.accel_ratio), "{rc:?}");
+        assert!((0.5..2.0).contains(&rc.jerk_ratio), "{rc:?}");
+        assert!(rc.diversity > 0.0, "{rc:?}");
         // The bootstrap range of FID over the generated clips is ordered.
         if let Some([lo, hi]) = r.fid_k_range {
             assert!(lo.is_finite() && lo >= 0.0 && lo <= hi, "{r:?}");

@@ -611,6 +611,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             posture: 0.0,
             context: 0,
             draws: 0,
+            pace: 0.0,
         }),
         exemplar: String::new(),
         candidates: 0,
@@ -950,6 +951,46 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         );
     }
 
+    // pace, the hold on the continued motion's pace among the candidate
+    // frames: the same frames over both transports, the answer says it;
+    // with one candidate (nothing to choose among) or past 100 a 400
+    // naming it.
+    let mut g = greq.clone();
+    let gs = g.sampling.as_mut().unwrap();
+    (gs.draws, gs.pace) = (3, 8.0);
+    let g = client.generate(g).await.unwrap().into_inner();
+    assert_eq!(g.sampling.as_ref().unwrap().pace, 8.0);
+    let req = json!({
+        "labels": {"genre": "BR"}, "frames": 24,
+        "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
+        "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
+        "sampling": {"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "draws": 3, "pace": 8.0}
+    });
+    let (status, r) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
+            .await
+            .unwrap();
+    assert_eq!(status, 200, "pace: {r}");
+    assert_eq!(r["sampling"]["pace"], json!(8.0), "{}", r["sampling"]);
+    let rr = flat_rotations(&r["output"]["rotations"]);
+    let gr = g.output.unwrap().rotations;
+    assert!(gr.iter().zip(&rr).all(|(a, b)| (a - b).abs() < 1e-12));
+    for bad in [
+        json!({"draws": 1, "pace": 3.0}),
+        json!({"draws": 2, "pace": 101.0}),
+    ] {
+        let far = json!({"frames": 4, "sampling": bad});
+        let (status, e) =
+            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&far)))
+                .await
+                .unwrap();
+        assert_eq!(
+            (status, e["error"]["field"].as_str()),
+            (400, Some("sampling.pace")),
+            "{e}"
+        );
+    }
+
     // A request naming no max_jump, top_p or posture gets the model's
     // default for its labels' kinds (the bundled manifest: posture 1.5 and
     // max_jump 12 for Bandai's style, posture 2 and max_jump 24 for its
@@ -1182,17 +1223,18 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .unwrap();
     for want in [
         // The prompt request, the top_p 0, keep_near, max_jump, posture,
-        // context and draws ones, the nine per-kind defaults; the 400s: the
-        // bad exemplar, the bad feet, keep_near 65, max_jump 181, posture
-        // 11, context 201, draws 17, the bad label and the over-long
-        // request; over gRPC the prompt request, best of 3, steered, root
-        // model and feet, feet pinned, exemplar none, top_p 0, keep_near 1,
-        // max_jump 2, posture 1.5, context 8, draws 2, the style, content
-        // and genre defaults; a steered stream, a feet stream, a pinned
-        // stream, and a stream asking for 2 candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 16",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 9",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 16",
+        // context, draws and pace ones, the nine per-kind defaults; the
+        // 400s: the bad exemplar, the bad feet, keep_near 65, max_jump 181,
+        // posture 11, context 201, draws 17, pace with one draw and pace
+        // 101, the bad label and the over-long request; over gRPC the
+        // prompt request, best of 3, steered, root model and feet, feet
+        // pinned, exemplar none, top_p 0, keep_near 1, max_jump 2, posture
+        // 1.5, context 8, draws 2, pace 8, the style, content and genre
+        // defaults; a steered stream, a feet stream, a pinned stream, and a
+        // stream asking for 2 candidates refused.
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 17",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 11",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 17",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 4",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",

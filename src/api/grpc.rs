@@ -79,6 +79,11 @@ impl Choreo for ChoreoGrpc {
                 },
                 context: r.sampling.context,
                 draws: r.sampling.draws,
+                pace: if r.sampling.pace == 0.0 {
+                    -1.0
+                } else {
+                    r.sampling.pace
+                },
             }),
         }))
     }

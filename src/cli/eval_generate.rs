@@ -7,28 +7,30 @@ use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use std::path::{Path, PathBuf};
 
-/// `T:K:P[:G[:N[:J[:W[:C[:D]]]]]]` (temperature, top-k, top-p, guidance,
-/// keep_near, max_jump, posture, context, draws), or `greedy`.
+/// `T:K:P[:G[:N[:J[:W[:C[:D[:A]]]]]]]` (temperature, top-k, top-p,
+/// guidance, keep_near, max_jump, posture, context, draws, pace), or
+/// `greedy`.
 pub fn parse_sampling(s: &str) -> Result<Sampling> {
     if s == "greedy" {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    if !(3..=9).contains(&parts.len()) {
+    if !(3..=10).contains(&parts.len()) {
         bail!(
-            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C[:D]]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context[:draws]]]]]]) or greedy"
+            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C[:D[:A]]]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context[:draws[:pace]]]]]]]) or greedy"
         );
     }
     // The optional fields, each its "off" value when left out.
     let field = |i: usize, off: &'static str| parts.get(i).copied().unwrap_or(off);
     let (t, k, p) = (parts[0], parts[1], parts[2]);
-    let (g, n, j, w, c, d) = (
+    let (g, n, j, w, c, d, a) = (
         field(3, "1"),
         field(4, "0"),
         field(5, "0"),
         field(6, "0"),
         field(7, "0"),
         field(8, "1"),
+        field(9, "0"),
     );
     let sm = Sampling {
         temperature: t
@@ -59,6 +61,9 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         draws: d
             .parse()
             .with_context(|| format!("--sampling: draws '{d}'"))?,
+        pace: a
+            .parse()
+            .with_context(|| format!("--sampling: pace '{a}'"))?,
     };
     sm.validate()
         .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;

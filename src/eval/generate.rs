@@ -38,6 +38,7 @@ use crate::tokenize::vocab::Vocabulary;
 use std::collections::BTreeMap;
 use std::path::Path;
 
+mod chained;
 mod clip;
 mod row;
 use clip::{clip_stats, diversity, ClipStats};
@@ -105,11 +106,13 @@ pub fn sampling_name(s: &Sampling) -> String {
     name
 }
 
-/// A real clip of the folder: its name, labels and tokens.
+/// A real clip of the folder: its name, labels, tokens and the motion they
+/// encode (the vocabulary's skeleton and frame rate).
 pub struct RealClip {
     pub name: String,
     pub labels: Labels,
     pub tokens: Vec<u32>,
+    pub motion: Motion,
 }
 
 /// Every readable motion under `data` (labels from the file name when the
@@ -130,16 +133,23 @@ pub fn read_split(
                 if m.labels.is_empty() {
                     m.labels = from_name(&m.name);
                 }
-                let tokens = vocab.prepare(&m).and_then(|p| vocab.encode_motion(&p));
-                match tokens {
-                    Ok(t) if !t.is_empty() => clips.push((
-                        crate::data::split_hash(&m.name),
-                        RealClip {
-                            name: m.name,
-                            labels: m.labels,
-                            tokens: t,
-                        },
-                    )),
+                let prepared = vocab
+                    .prepare(&m)
+                    .and_then(|p| vocab.encode_motion(&p).map(|t| (p, t)));
+                match prepared {
+                    Ok((mut p, t)) if !t.is_empty() => {
+                        p.name = m.name.clone();
+                        p.labels = m.labels.clone();
+                        clips.push((
+                            crate::data::split_hash(&m.name),
+                            RealClip {
+                                name: m.name,
+                                labels: m.labels,
+                                tokens: t,
+                                motion: p,
+                            },
+                        ))
+                    }
                     Ok(_) => {}
                     Err(e) => say(format!("skipping {}: {e}", f.display())),
                 }
@@ -344,6 +354,22 @@ pub fn eval_generate(
     let fid_k_real_same_n_without = same_size_by(&rk, &tk, n_gen, |r, p| {
         first_axis(r, p).map(|a| a.fid_without)
     });
+    // Real training takes of each value played on to the generated length
+    // (not with held-out lengths: those clips are as long as the takes).
+    let real_chained = if o.held_out_lengths {
+        None
+    } else {
+        let clips = chained::chained_clips(&vocab, &train, (kind, &values), o.per_label, seg, say);
+        let stats = clips
+            .iter()
+            .map(|(v, t)| {
+                clip_stats(&vocab, t, in_place, (false, false))
+                    .map(|s| (v.clone(), s))
+                    .map_err(|e| anyhow::anyhow!("{e}"))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        (!stats.is_empty()).then(|| chained::measure(&stats, &real))
+    };
     let runs: Vec<(&Sampling, bool, u32)> = o
         .samplings
         .iter()
@@ -464,6 +490,7 @@ pub fn eval_generate(
                 fid_g_real,
                 fid_k_real_same_n,
                 fid_g_real_same_n,
+                real_chained: real_chained.clone(),
                 fid_k_gaps: feature_gaps(&rk, &gk, GAPS_SHOWN)
                     .into_iter()
                     .map(|g| FeatureGap {

@@ -44,6 +44,8 @@ pub struct FrameGenerator {
     sampling: Sampling,
     /// The labels' posture pull (`sampling.posture`), if any.
     pull: Option<Arc<super::posture::Pull>>,
+    /// The seed's pace held (`sampling.pace`), if any.
+    pace: Option<super::pace::Pace>,
     pub produced: usize,
     /// Per class kind (the config's order), the class heads' logits summed
     /// over the frames produced so far: read from the unlabelled track
@@ -122,6 +124,11 @@ impl FrameGenerator {
                 })
             })
             .collect::<Result<Vec<_>, _>>()?;
+        let pace = if sampling.draws > 1 && sampling.temperature > 0.0 {
+            super::pace::Pace::from_seed(sampling.pace, &session.manifest.vocabulary, &c, &frames)
+        } else {
+            None
+        };
         let mut g = FrameGenerator {
             session,
             tracks,
@@ -132,6 +139,7 @@ impl FrameGenerator {
             rng: StdRng::seed_from_u64(sampling.seed),
             sampling,
             pull,
+            pace,
             produced: 0,
             cls_sum: c.classes.iter().map(|(_, v)| vec![0.0; v.len()]).collect(),
         };
@@ -164,6 +172,7 @@ impl FrameGenerator {
             before: self.before.clone(),
             h: self.h.clone(),
             rng: StdRng::seed_from_u64(seed),
+            pace: self.pace.clone(),
             sampling: Sampling {
                 seed,
                 ..self.sampling.clone()
@@ -273,7 +282,20 @@ impl FrameGenerator {
                 n > 1,
             )?);
         }
-        let mut frame = super::typical::most_typical(cands);
+        let vocab = &session.manifest.vocabulary;
+        let paces: Vec<[f64; super::pace::PARTS]> = match (&self.pace, p1.as_deref()) {
+            (Some(_), Some(p)) => cands
+                .iter()
+                .map(|(f, _, _)| super::pace::frame_pace(vocab, &c, p2.as_deref(), p, f))
+                .collect(),
+            _ => Vec::new(),
+        };
+        let held = self.pace.as_ref().filter(|_| !paces.is_empty());
+        let (mut frame, kept) =
+            super::typical::most_typical(cands, |i| held.map_or(0.0, |h| h.cost(paces[i])));
+        if let (Some(h), Some(p)) = (self.pace.as_mut(), paces.get(kept)) {
+            h.push(*p);
+        }
         // The global window: when full, keep the last half, whose cache
         // (`next`) was filled as those frames came; then feed the frame.
         let m = window_len(&c, &self.sampling);

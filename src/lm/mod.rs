@@ -29,6 +29,7 @@ pub mod generate;
 pub mod inbetween;
 pub mod manifest;
 pub mod model;
+pub mod pace;
 pub mod posture;
 pub mod runtime;
 pub mod sampling;

@@ -26,6 +26,7 @@ pub struct Named {
     pub top_p: bool,
     pub posture: bool,
     pub draws: bool,
+    pub pace: bool,
 }
 
 /// A loaded motion model of either kind: immutable, shared by requests.
@@ -94,7 +95,7 @@ impl MotionModel {
     }
 
     /// Fills in what a request for these label kinds did not name of
-    /// `max_jump`, `top_p`, `posture` and `draws`: the model's defaults for those
+    /// `max_jump`, `top_p`, `posture`, `draws` and `pace`: the model's defaults for those
     /// kinds ([`Self::default_max_jump`], [`Self::kind_sampling`]). The
     /// service and `choreo eval generate --sampling default` both go
     /// through here, so what is measured as the default is what a request
@@ -116,9 +117,16 @@ impl MotionModel {
         if let (false, Some(n)) = (named.draws, d.draws) {
             s.draws = n;
         }
+        // The pace hold chooses among candidates: a default one only where
+        // there are some to choose among.
+        if let (false, Some(a)) = (named.pace, d.pace) {
+            if s.draws > 1 {
+                s.pace = a;
+            }
+        }
     }
 
-    /// The `top_p`, `posture` and `draws` defaults for a request asking for these
+    /// The `top_p`, `posture`, `draws` and `pace` defaults for a request asking for these
     /// label kinds and naming them not: per field, the first kind (in the
     /// order given) the manifest's `sampling_by_kind` lists it for.
     pub fn kind_sampling<'a>(
@@ -134,6 +142,7 @@ impl MotionModel {
                 out.top_p = out.top_p.or(d.top_p);
                 out.posture = out.posture.or(d.posture);
                 out.draws = out.draws.or(d.draws);
+                out.pace = out.pace.or(d.pace);
             }
         }
         out

@@ -51,6 +51,13 @@ pub struct Sampling {
     /// in their tails at once (jitter). 1 = plain drawing; each candidate
     /// costs a pass of the local decoder (docs/RESULTS.md, "Session 37").
     pub draws: u32,
+    /// Frame model only, with `draws` ≥ 2: how strongly the kept candidate
+    /// holds the pace (joint angular speed and root ground speed over the
+    /// last 0.5 s) of the motion the clip continues, a seed motion or a
+    /// style exemplar ([`super::pace`]; 0 = off; nothing to hold without
+    /// one). Added to each candidate's distance from typical, in nats per
+    /// unit of log ratio.
+    pub pace: f64,
 }
 
 impl Default for Sampling {
@@ -66,6 +73,7 @@ impl Default for Sampling {
             posture: 0.0,
             context: 0,
             draws: 1,
+            pace: 0.0,
         }
     }
 }
@@ -94,6 +102,7 @@ pub const RECOMMENDED: Sampling = Sampling {
     posture: 0.0,
     context: 0,
     draws: 1,
+    pace: 0.0,
 };
 
 /// The most candidate frames `sampling.draws` may ask for.
@@ -149,6 +158,23 @@ impl Sampling {
                 "request",
                 "sampling.draws",
                 format!("{} (want 1 to {MAX_DRAWS}; 1 = plain drawing)", self.draws),
+            ));
+        }
+        if !(self.pace.is_finite() && (0.0..=100.0).contains(&self.pace)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.pace",
+                format!("{} (want 0 to 100; 0 = off)", self.pace),
+            ));
+        }
+        if self.pace > 0.0 && self.draws < 2 && self.temperature > 0.0 {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.pace",
+                format!(
+                    "{} needs candidates to choose among (sampling.draws 2 or more; it is {})",
+                    self.pace, self.draws
+                ),
             ));
         }
         if self.max_jump > 180 {

@@ -6,16 +6,22 @@
 use super::frame::FrameConfig;
 
 /// Of candidate frames (tokens, surprise, expected surprise), the one whose
-/// surprise lies nearest its expectation (the first such on a tie).
-pub(super) fn most_typical(cands: Vec<(Vec<u32>, f64, f64)>) -> Vec<u32> {
-    let mut best: Option<(f64, Vec<u32>)> = None;
-    for (frame, surprise, expected) in cands {
-        let off = (surprise - expected).abs();
+/// surprise lies nearest its expectation, `extra(i)` added to candidate
+/// `i`'s distance (the pace hold's cost; the first such on a tie), and its
+/// index.
+pub(super) fn most_typical(
+    cands: Vec<(Vec<u32>, f64, f64)>,
+    extra: impl Fn(usize) -> f64,
+) -> (Vec<u32>, usize) {
+    let mut best: Option<(f64, Vec<u32>, usize)> = None;
+    for (i, (frame, surprise, expected)) in cands.into_iter().enumerate() {
+        let off = (surprise - expected).abs() + extra(i);
         if best.as_ref().map_or(true, |b| off < b.0) {
-            best = Some((off, frame));
+            best = Some((off, frame, i));
         }
     }
-    best.expect("at least one candidate").1
+    let (_, frame, i) = best.expect("at least one candidate");
+    (frame, i)
 }
 
 fn log_softmax(x: &[f32]) -> Vec<f64> {
@@ -103,7 +109,14 @@ mod tests {
             (vec![3], 11.0, 10.0),
             (vec![4], 8.5, 10.0),
         ];
-        assert_eq!(super::most_typical(cands), vec![3]);
-        assert_eq!(super::most_typical(vec![(vec![7], 0.0, 50.0)]), vec![7]);
+        assert_eq!(super::most_typical(cands.clone(), |_| 0.0), (vec![3], 2));
+        assert_eq!(
+            super::most_typical(vec![(vec![7], 0.0, 50.0)], |_| 0.0),
+            (vec![7], 0)
+        );
+        // An extra cost (the pace hold's) adds to the distance: the
+        // second-most typical (1.5 off) wins once the first pays 1.
+        let pace = |i: usize| if i == 2 { 1.0 } else { 0.0 };
+        assert_eq!(super::most_typical(cands, pace), (vec![4], 3));
     }
 }

@@ -90,6 +90,7 @@ pub(super) fn named(s: &Option<pb::Sampling>) -> crate::service::generate::Named
         top_p: explicit(s),
         posture: s.posture != 0.0,
         draws: s.draws != 0,
+        pace: s.pace != 0.0,
     }
 }
 
@@ -124,6 +125,12 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     };
     // 0 = the recommended count of candidate frames.
     let draws = if s.draws == 0 { r.draws } else { s.draws };
+    // proto3 again: 0 = the model's default hold, negative = none.
+    let pace = if s.pace == 0.0 {
+        r.pace
+    } else {
+        s.pace.max(0.0)
+    };
     if !explicit(&s) {
         return crate::lm::Sampling {
             guidance,
@@ -131,6 +138,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
             posture,
             context: s.context,
             draws,
+            pace,
             ..r
         };
     }
@@ -145,6 +153,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         posture,
         context: s.context,
         draws,
+        pace,
     }
 }
 

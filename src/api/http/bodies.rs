@@ -203,6 +203,11 @@ pub struct SamplingJson {
     /// `sampling_by_kind`), else the recommended count (1), with or
     /// without a temperature.
     pub draws: Option<u32>,
+    /// How strongly the kept candidate holds the pace of the motion the
+    /// clip continues (a seed motion or a style exemplar; frame model,
+    /// with `draws` 2 or more; 0 = off); absent = the model's default for
+    /// the label kinds asked for where `draws` leaves a choice, else off.
+    pub pace: Option<f64>,
 }
 
 impl SamplingJson {
@@ -214,6 +219,7 @@ impl SamplingJson {
             top_p: self.top_p.is_some() || self.temperature.is_some(),
             posture: self.posture.is_some(),
             draws: self.draws.is_some(),
+            pace: self.pace.is_some(),
         }
     }
 
@@ -233,6 +239,7 @@ impl SamplingJson {
                 posture: self.posture.unwrap_or(r.posture),
                 context: self.context.unwrap_or(r.context),
                 draws: self.draws.unwrap_or(r.draws),
+                pace: self.pace.unwrap_or(r.pace),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -246,6 +253,7 @@ impl SamplingJson {
                 posture: self.posture.unwrap_or(r.posture),
                 context: self.context.unwrap_or(r.context),
                 draws: self.draws.unwrap_or(r.draws),
+                pace: self.pace.unwrap_or(r.pace),
             },
         }
     }

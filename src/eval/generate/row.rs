@@ -27,6 +27,10 @@ pub struct GenRow {
     /// `None` where there are fewer training segments than clips.
     pub fid_k_real_same_n: Option<f64>,
     pub fid_g_real_same_n: Option<f64>,
+    /// The real yardstick at the generated length: real training takes of
+    /// each value played on to it (see [`RealChained`]); `None` with
+    /// held-out lengths, or where no training take chains.
+    pub real_chained: Option<RealChained>,
     /// The kinetic features the generated clips get most wrong against the
     /// held-out real ones (mean shift and spread ratio in real standard
     /// deviations; ranked by z² + (spread − 1)²): what drives FID_k.
@@ -77,6 +81,25 @@ pub struct GenRow {
     /// The real clips have no root trajectory, so both sides were measured
     /// with the root held in place.
     pub root_in_place: bool,
+}
+
+/// Real training takes played on to the generated clips' length, as many
+/// clips as were generated (per value, each starting from another take
+/// and going on with the takes sharing its every label but the take
+/// number, looping when they run out; joined where each best goes on,
+/// `Motion::chain`), measured against the held-out real takes as the
+/// generated clips are. Where the real takes are shorter than the
+/// generated clips (Bandai: 4 s on average against 10 s), this is what
+/// real motion of the label scores at the generated length.
+#[derive(Clone, Debug, Serialize)]
+pub struct RealChained {
+    pub clips: usize,
+    pub fid_k: Option<f64>,
+    pub fid_g: Option<f64>,
+    pub accel_ratio: f64,
+    pub jerk_ratio: f64,
+    pub skate_ratio: f64,
+    pub diversity: f64,
 }
 
 /// One label value's conditioning accuracy ([`GenRow::cond_acc_by_label`]).
