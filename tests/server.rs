@@ -41,6 +41,19 @@ fn http(addr: SocketAddr, method: &str, path: &str, body: Option<&Value>) -> (u1
     http_as(addr, method, path, body, None)
 }
 
+/// `POST /v1/generate` with `body` is a 400 whose error names `field`.
+async fn generate_refused(addr: SocketAddr, body: Value, field: &str) {
+    let (status, e) =
+        tokio::task::spawn_blocking(move || http(addr, "POST", "/v1/generate", Some(&body)))
+            .await
+            .unwrap();
+    assert_eq!(
+        (status, e["error"]["field"].as_str()),
+        (400, Some(field)),
+        "{e}"
+    );
+}
+
 /// [`http`] with `Authorization: Bearer <token>`. A body that is not JSON
 /// comes back as a JSON string.
 fn http_as(
@@ -831,15 +844,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     );
     for (field, value) in [("exemplar", "always"), ("feet", "glue")] {
         let bad = json!({"labels": {"genre": "BR"}, "frames": 4, field: value});
-        let (status, e) =
-            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&bad)))
-                .await
-                .unwrap();
-        assert_eq!(
-            (status, e["error"]["field"].as_str()),
-            (400, Some(field)),
-            "{e}"
-        );
+        generate_refused(h, bad, field).await;
     }
     let m = one.output.unwrap();
     let rest_rot = flat_rotations(&out["rotations"]);
@@ -940,15 +945,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             r["sampling"]
         );
         let far = json!({"frames": 4, "sampling": {field: as_json(bad)}});
-        let (status, e) =
-            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&far)))
-                .await
-                .unwrap();
-        assert_eq!(
-            (status, e["error"]["field"].as_str()),
-            (400, Some(format!("sampling.{field}").as_str())),
-            "{e}"
-        );
+        generate_refused(h, far, &format!("sampling.{field}")).await;
     }
 
     // pace, the hold on the continued motion's pace among the candidate
@@ -979,16 +976,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         json!({"draws": 1, "pace": 3.0}),
         json!({"draws": 2, "pace": 101.0}),
     ] {
-        let far = json!({"frames": 4, "sampling": bad});
-        let (status, e) =
-            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&far)))
-                .await
-                .unwrap();
-        assert_eq!(
-            (status, e["error"]["field"].as_str()),
-            (400, Some("sampling.pace")),
-            "{e}"
-        );
+        generate_refused(h, json!({"frames": 4, "sampling": bad}), "sampling.pace").await;
     }
 
     // A request naming no max_jump, top_p or posture gets the model's
@@ -1184,16 +1172,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         err["error"]["field"].as_str().unwrap().contains("labels"),
         "{err}"
     );
-    let bad = json!({"frames": 100000});
-    let (status, err) =
-        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&bad)))
-            .await
-            .unwrap();
-    assert_eq!(
-        (status, err["error"]["field"].as_str()),
-        (400, Some("frames")),
-        "{err}"
-    );
+    generate_refused(h, json!({"frames": 100000}), "frames").await;
     let e = client
         .generate(pb::GenerateRequest {
             prompt_joints: vec!["tail".into()],

@@ -96,6 +96,7 @@ pub fn sampling_name(s: &Sampling) -> String {
         ("posture", s.posture, 0.0),
         ("context", s.context as f64, 0.0),
         ("draws", s.draws as f64, 1.0),
+        ("pace", s.pace, 0.0),
     ];
     let mut name = format!("t={} top_k={} top_p={}", s.temperature, s.top_k, s.top_p);
     for (field, value, off) in extras {
