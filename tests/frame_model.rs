@@ -130,7 +130,7 @@ fn alike_training_takes_chain_and_held_out_takes_stay_single() {
     let joins = (plain.train.len() - chained.train.len()) as f64;
     let (all, kept) = (frames(&plain.train), frames(&chained.train));
     let take = all / plain.train.len() as f64;
-    let bridge = data::CHAIN_BRIDGE_S * v.fps;
+    let bridge = choreo::motion::Motion::CHAIN_BRIDGE_S * v.fps;
     assert!(
         kept <= all + joins * (bridge + 2.0) && kept >= all - joins * (take / 2.0 + 2.0),
         "{kept} frames chained of {all}, {joins} joins"

@@ -108,7 +108,8 @@ pub fn sampling_name(s: &Sampling) -> String {
 }
 
 /// A real clip of the folder: its name, labels, tokens and the motion they
-/// encode (the vocabulary's skeleton and frame rate).
+/// encode (the vocabulary's skeleton and frame rate; its own name and
+/// labels as the vocabulary's preparation left them: read the clip's).
 pub struct RealClip {
     pub name: String,
     pub labels: Labels,
@@ -138,19 +139,15 @@ pub fn read_split(
                     .prepare(&m)
                     .and_then(|p| vocab.encode_motion(&p).map(|t| (p, t)));
                 match prepared {
-                    Ok((mut p, t)) if !t.is_empty() => {
-                        p.name = m.name.clone();
-                        p.labels = m.labels.clone();
-                        clips.push((
-                            crate::data::split_hash(&m.name),
-                            RealClip {
-                                name: m.name,
-                                labels: m.labels,
-                                tokens: t,
-                                motion: p,
-                            },
-                        ))
-                    }
+                    Ok((p, t)) if !t.is_empty() => clips.push((
+                        crate::data::split_hash(&m.name),
+                        RealClip {
+                            name: m.name,
+                            labels: m.labels,
+                            tokens: t,
+                            motion: p,
+                        },
+                    )),
                     Ok(_) => {}
                     Err(e) => say(format!("skipping {}: {e}", f.display())),
                 }
@@ -361,14 +358,7 @@ pub fn eval_generate(
         None
     } else {
         let clips = chained::chained_clips(&vocab, &train, (kind, &values), o.per_label, seg, say);
-        let stats = clips
-            .iter()
-            .map(|(v, t)| {
-                clip_stats(&vocab, t, in_place, (false, false))
-                    .map(|s| (v.clone(), s))
-                    .map_err(|e| anyhow::anyhow!("{e}"))
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
+        let stats = stats(&clips)?;
         (!stats.is_empty()).then(|| chained::measure(&stats, &real))
     };
     let runs: Vec<(&Sampling, bool, u32)> = o

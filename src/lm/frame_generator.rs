@@ -282,19 +282,23 @@ impl FrameGenerator {
                 n > 1,
             )?);
         }
+        // The pace hold (it has a seed, so a previous frame) prices each
+        // candidate, and records the kept one's pace.
         let vocab = &session.manifest.vocabulary;
-        let paces: Vec<[f64; super::pace::PARTS]> = match (&self.pace, p1.as_deref()) {
-            (Some(_), Some(p)) => cands
+        let paces: Option<Vec<_>> = self.pace.as_ref().and(p1.as_deref()).map(|p| {
+            cands
                 .iter()
                 .map(|(f, _, _)| super::pace::frame_pace(vocab, &c, p2.as_deref(), p, f))
-                .collect(),
-            _ => Vec::new(),
-        };
-        let held = self.pace.as_ref().filter(|_| !paces.is_empty());
-        let (mut frame, kept) =
-            super::typical::most_typical(cands, |i| held.map_or(0.0, |h| h.cost(paces[i])));
-        if let (Some(h), Some(p)) = (self.pace.as_mut(), paces.get(kept)) {
-            h.push(*p);
+                .collect()
+        });
+        let (mut frame, kept) = super::typical::most_typical(cands, |i| {
+            self.pace
+                .as_ref()
+                .zip(paces.as_ref())
+                .map_or(0.0, |(h, ps)| h.cost(ps[i]))
+        });
+        if let (Some(h), Some(ps)) = (self.pace.as_mut(), &paces) {
+            h.push(ps[kept]);
         }
         // The global window: when full, keep the last half, whose cache
         // (`next`) was filled as those frames came; then feed the frame.

@@ -52,11 +52,12 @@ pub struct Sampling {
     /// costs a pass of the local decoder (docs/RESULTS.md, "Session 37").
     pub draws: u32,
     /// Frame model only, with `draws` ≥ 2: how strongly the kept candidate
-    /// holds the pace (joint angular speed and root ground speed over the
-    /// last 0.5 s) of the motion the clip continues, a seed motion or a
-    /// style exemplar ([`super::pace`]; 0 = off; nothing to hold without
-    /// one). Added to each candidate's distance from typical, in nats per
-    /// unit of log ratio.
+    /// holds the pace (the legs' and arms' angular speed, the root's ground
+    /// speed and the joints' acceleration over the last 0.5 s) of the
+    /// motion the clip continues, a seed motion or a style exemplar
+    /// ([`super::pace`]; 0 = off; nothing to hold without one). Added to
+    /// each candidate's distance from typical, in nats per unit of log
+    /// ratio.
     pub pace: f64,
 }
 

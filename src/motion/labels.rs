@@ -105,6 +105,15 @@ pub fn from_name(name: &str) -> Labels {
         .unwrap_or_default()
 }
 
+/// Every label but the take number: what takes of one content and style
+/// (Bandai) share, so they can be played one after another
+/// ([`super::Motion::chain`]).
+pub fn but_take(labels: &Labels) -> Labels {
+    let mut l = labels.clone();
+    l.remove("take");
+    l
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -151,17 +151,15 @@ pub fn build(
     build_chained(motions, vocab, val_fraction, mirror, info, &[])
 }
 
-/// The seconds of SLERP that join two chained takes.
-pub const CHAIN_BRIDGE_S: f64 = 0.1;
-
 /// [`build`], with the training takes of each corpus named in `chain` that
 /// share every label but `take` (a Bandai content and style) played one
 /// after another as one sequence ([`Motion::chain`], joined by
-/// [`CHAIN_BRIDGE_S`]): a run cut short by the capture volume goes on into
+/// [`Motion::CHAIN_BRIDGE_S`]): a run cut short by the capture volume goes on into
 /// the next take's, so a window can hold a longer pass than any one take.
 /// Held-out takes stay single, so validation is unchanged.
 ///
 /// [`Motion::chain`]: crate::motion::Motion::chain
+/// [`Motion::CHAIN_BRIDGE_S`]: crate::motion::Motion::CHAIN_BRIDGE_S
 pub fn build_chained(
     motions: Vec<(String, crate::motion::Motion)>,
     vocab: &Vocabulary,
@@ -240,11 +238,7 @@ pub fn build_chained(
 /// its (hash) order; a group that cannot chain (unlike skeletons) stays as
 /// single takes.
 fn chain_alike(takes: Vec<crate::motion::Motion>) -> Vec<crate::motion::Motion> {
-    let alike = |m: &crate::motion::Motion| {
-        let mut l = m.labels.clone();
-        l.remove("take");
-        l
-    };
+    let alike = |m: &crate::motion::Motion| crate::motion::labels::but_take(&m.labels);
     let mut groups: Vec<Vec<crate::motion::Motion>> = Vec::new();
     for m in takes {
         match groups.iter_mut().find(|g| alike(&g[0]) == alike(&m)) {
@@ -258,7 +252,7 @@ fn chain_alike(takes: Vec<crate::motion::Motion>) -> Vec<crate::motion::Motion> 
             out.extend(g);
             continue;
         }
-        let bridge = (CHAIN_BRIDGE_S * g[0].fps).round() as usize;
+        let bridge = (crate::motion::Motion::CHAIN_BRIDGE_S * g[0].fps).round() as usize;
         match crate::motion::Motion::chain(&g, bridge) {
             Ok(mut c) => {
                 c.name = format!("{} (+{} alike takes)", c.name, g.len() - 1);

@@ -6,12 +6,9 @@
 //! what 10 s of real motion of the label scores against them.
 
 use super::{ClipStats, RealClip};
+use crate::motion::labels::but_take;
 use crate::motion::Motion;
 use crate::tokenize::vocab::Vocabulary;
-
-/// Seconds of SLERP that join two takes (as the trainer's
-/// `--chain-takes`, `train::data::CHAIN_BRIDGE_S`).
-const BRIDGE_S: f64 = 0.1;
 
 /// `per_label` clips of `frames` frames for each of `values` (of label
 /// `kind`): clip `i` starts with the `i`-th training take of the value (in
@@ -29,12 +26,7 @@ pub(super) fn chained_clips(
     say: &mut dyn FnMut(String),
 ) -> Vec<(String, Vec<u32>)> {
     let fl = vocab.frame_len();
-    let alike = |m: &Motion| {
-        let mut l = m.labels.clone();
-        l.remove("take");
-        l
-    };
-    let bridge = (BRIDGE_S * vocab.fps).round() as usize;
+    let bridge = (Motion::CHAIN_BRIDGE_S * vocab.fps).round() as usize;
     let mut out = Vec::new();
     for v in values {
         let takes: Vec<&RealClip> = train
@@ -45,25 +37,26 @@ pub(super) fn chained_clips(
             continue;
         }
         for i in 0..per_label {
-            let first = &takes[i % takes.len()].motion;
-            let group: Vec<&Motion> = train
+            let first = takes[i % takes.len()];
+            let key = but_take(&first.labels);
+            let group: Vec<&RealClip> = takes
                 .iter()
-                .map(|c| &c.motion)
-                .filter(|m| m.frames() > 1 && alike(m) == alike(first))
+                .copied()
+                .filter(|c| but_take(&c.labels) == key)
                 .collect();
             let at = group
                 .iter()
-                .position(|m| std::ptr::eq(*m, first))
+                .position(|c| std::ptr::eq(*c, first))
                 .unwrap_or(0);
             // Enough takes that, each entering up to half-way in, the
             // chain outlasts the clip.
-            let mut chain = vec![first.clone()];
-            let mut have = first.frames();
+            let mut chain = vec![first.motion.clone()];
+            let mut have = first.motion.frames();
             let mut k = at;
             while have < 2 * frames + 2 && chain.len() < 64 {
                 k = (k + 1) % group.len();
-                have += group[k].frames() / 2;
-                chain.push(group[k].clone());
+                have += group[k].motion.frames() / 2;
+                chain.push(group[k].motion.clone());
             }
             let tokens = Motion::chain(&chain, bridge)
                 .map_err(|e| e.to_string())

@@ -4,6 +4,11 @@
 use super::*;
 
 impl Motion {
+    /// Seconds of SLERP that join two chained takes (`choreo-train
+    /// --chain-takes`, and the real takes of `eval generate`'s
+    /// `real_chained`).
+    pub const CHAIN_BRIDGE_S: f64 = 0.1;
+
     /// Takes played one after another as one motion, each entering where
     /// it best goes on from the last: the next take starts at the frame
     /// after its pose nearest the chain's last pose (every joint but the
