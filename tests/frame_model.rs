@@ -73,6 +73,8 @@ fn settings(steps: usize) -> RunSettings {
         max_seconds: 0.0,
         corpus_weights: Default::default(),
         balance: None,
+        context_noise: 0.0,
+        own_context: 0.0,
     }
 }
 
@@ -815,6 +817,153 @@ fn bad_frame_manifests_are_clear_errors() {
     bad[3] = Some(v.sep());
     let e = g.next_frame(&bad).err().unwrap().to_string();
     assert!(e.contains("prompt slot 3"), "{e}");
+}
+
+#[test]
+fn context_noise_moves_what_the_network_reads_not_what_it_is_scored_on() {
+    use rand::SeedableRng;
+    let v = vocab();
+    let cfg = config(&v);
+    let s = cfg.slots;
+    let bins = cfg.bins as u32;
+    // 6 frames; the first angle slot sits at the wrap (bin 0), the last
+    // root slot at the top bin, the rest mid-range and moving.
+    let values: Vec<u32> = (0..6)
+        .flat_map(|f| {
+            (0..s).map(move |k| match k {
+                0 => 0,
+                k if k == s - 1 => bins - 1,
+                k => 100 + f as u32 * 2 + k as u32,
+            })
+        })
+        .collect();
+    let labels = Labels::new();
+    let make = |seed: u64, noise: f64| {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        // From frame 2: two frames of history.
+        let mut ex = fr::example(&cfg, &v, &values, 2, 4, &labels, false, 1.0, &mut rng);
+        fr::add_context_noise(&cfg, &mut ex, noise, &mut rng);
+        ex
+    };
+    // Off: nothing changes, and the batch is the clean one.
+    let clean = make(7, 0.0);
+    assert!(clean.context.is_none());
+    let u = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<u32>().unwrap();
+    let bc = fr::batch(&cfg, std::slice::from_ref(&clean), &Device::Cpu).unwrap();
+    assert_eq!(u(&bc.val), clean.frames);
+    // On: the frames read move, within bounds; the targets do not.
+    let mut moved = 0;
+    for seed in 0..20 {
+        let ex = make(seed, 3.0);
+        let (seen, hist) = ex.context.as_ref().expect("noisy context");
+        assert_eq!(seen.len(), ex.frames.len());
+        assert_eq!(hist.len(), 2);
+        for (i, (&a, &b)) in ex.frames.iter().zip(seen).enumerate() {
+            assert!(b < bins, "slot {i}: bin {b}");
+            let d = (a as i64 - b as i64).abs();
+            let d = if cfg.wraps(i % s) {
+                d.min(bins as i64 - d)
+            } else {
+                d
+            };
+            assert!(d <= 18, "slot {i}: moved {d} bins at most σ 3");
+            moved += usize::from(d > 0);
+        }
+        let b = fr::batch(&cfg, std::slice::from_ref(&ex), &Device::Cpu).unwrap();
+        assert_eq!(&u(&b.val), seen, "the global input is the noisy frames");
+        let (rel_t, prev) = (u(&b.rel_t), u(&b.prev));
+        for f in 0..4 {
+            let p1: &[u32] = if f == 0 {
+                &hist[0]
+            } else {
+                &seen[(f - 1) * s..f * s]
+            };
+            for k in 0..s {
+                let i = f * s + k;
+                assert_eq!(
+                    prev[i], p1[k],
+                    "the local decoder reads the noisy previous frame"
+                );
+                assert_eq!(
+                    rel_t[i],
+                    cfg.change(Some(p1[k]), ex.frames[i]),
+                    "the target is the true frame against what was read"
+                );
+            }
+        }
+    }
+    assert!(moved > 20 * 4 * s / 4, "noise moved only {moved} slots");
+}
+
+#[test]
+fn own_samples_replace_context_frames_within_the_change_window() {
+    use rand::SeedableRng;
+    let v = vocab();
+    let cfg = config(&v);
+    let s = cfg.slots;
+    let net = FrameNet::new(cfg.clone(), &Device::Cpu).unwrap();
+    let values: Vec<u32> = (0..8)
+        .flat_map(|f| (0..s).map(move |k| 150 + (f * 3 + k) as u32 % 40))
+        .collect();
+    let labels = Labels::new();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+    let mut exs: Vec<_> = [0, 2]
+        .iter()
+        .map(|&start| fr::example(&cfg, &v, &values, start, 6, &labels, false, 1.0, &mut rng))
+        .collect();
+    fr::add_own_samples(&net, &mut exs, 0.0, &mut rng, &Device::Cpu).unwrap();
+    assert!(
+        exs.iter().all(|e| e.context.is_none()),
+        "share 0 changes nothing"
+    );
+    fr::add_own_samples(&net, &mut exs, 1.0, &mut rng, &Device::Cpu).unwrap();
+    let mut changed = 0;
+    for e in &exs {
+        let (seen, hist) = e.context.as_ref().expect("own samples read");
+        assert_eq!(hist, &e.hist, "the history before the window stays");
+        for f in 0..6 {
+            let p1: Option<&[u32]> = if f == 0 {
+                e.hist.first().map(|p| p.as_slice())
+            } else {
+                Some(&e.frames[(f - 1) * s..f * s])
+            };
+            for k in 0..s {
+                let (got, truth) = (seen[f * s + k], e.frames[f * s + k]);
+                match p1 {
+                    // A window's first frame without history is never replaced.
+                    None => assert_eq!(got, truth),
+                    Some(p) => {
+                        let d = (got as i64 - p[k] as i64).abs();
+                        let d = if cfg.wraps(k) {
+                            d.min(cfg.bins as i64 - d)
+                        } else {
+                            d
+                        };
+                        assert!(
+                            d <= cfg.radius as i64 || got == truth,
+                            "frame {f} slot {k}: a draw {d} bins from the frame before"
+                        );
+                        changed += usize::from(got != truth);
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        changed > 6 * s,
+        "an untrained model's draws moved only {changed} slots"
+    );
+    let b = fr::batch(&cfg, &exs, &Device::Cpu).unwrap();
+    let rel_t = b.rel_t.to_vec1::<u32>().unwrap();
+    let (seen, _) = exs[1].context.as_ref().unwrap();
+    let t = b.t;
+    for k in 0..s {
+        let i = (t + 3) * s + k;
+        assert_eq!(
+            rel_t[i],
+            cfg.change(Some(seen[2 * s + k]), exs[1].frames[3 * s + k])
+        );
+    }
 }
 
 #[test]

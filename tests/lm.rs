@@ -100,6 +100,8 @@ fn trained(cfg: ModelConfig, v: &Vocabulary) -> Gpt {
         max_seconds: 0.0,
         corpus_weights: Default::default(),
         balance: None,
+        context_noise: 0.0,
+        own_context: 0.0,
     };
     let mut opt = AdamW::new(s.lr, s.weight_decay);
     let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(3);

@@ -121,6 +121,8 @@ pub fn train(
         mask_rate: 0.15,
         corpus_weights: Default::default(),
         balance: None,
+        context_noise: 0.0,
+        own_context: 0.0,
         max_seconds: a.max_seconds,
     };
     let (mut state, model, mut opt) = match (resume_state, init_state) {

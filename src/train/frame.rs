@@ -183,6 +183,135 @@ pub struct FrameExample {
     pub cond: Vec<u32>,
     /// Class targets: (kind index, class index).
     pub classes: Vec<(usize, usize)>,
+    /// The frames and history as the network reads them when they differ
+    /// from the true ones (context noise, [`add_context_noise`]); the
+    /// targets are always `frames`.
+    pub context: Option<(Vec<u32>, Vec<Vec<u32>>)>,
+}
+
+/// Puts context noise on an example: draws a level `σ` uniformly in
+/// `[0, max_bins]` and moves every slot of every frame and history frame
+/// the network reads by a rounded `N(0, σ²)` number of bins (angle slots
+/// wrap round, the others are clamped into the bins). The frames stay the
+/// targets, so the change the model learns to name is the true next frame
+/// against the noisy previous one: it learns to continue from imperfect
+/// history and steer back, as it must from its own samples (exposure
+/// bias). `max_bins` 0 leaves the example clean.
+pub fn add_context_noise(
+    cfg: &FrameConfig,
+    ex: &mut FrameExample,
+    max_bins: f64,
+    rng: &mut StdRng,
+) {
+    if max_bins <= 0.0 {
+        return;
+    }
+    let sigma = rng.gen::<f64>() * max_bins;
+    let s = cfg.slots;
+    let bins = cfg.bins as i64;
+    let noisy = |v: &[u32], rng: &mut StdRng| -> Vec<u32> {
+        v.iter()
+            .enumerate()
+            .map(|(i, &x)| {
+                let d = (gaussian(rng) * sigma).round() as i64;
+                let y = x as i64 + d;
+                let y = if cfg.wraps(i % s) {
+                    y.rem_euclid(bins)
+                } else {
+                    y.clamp(0, bins - 1)
+                };
+                y as u32
+            })
+            .collect()
+    };
+    let frames = noisy(&ex.frames, rng);
+    let hist = ex.hist.iter().map(|h| noisy(h, rng)).collect();
+    ex.context = Some((frames, hist));
+}
+
+/// Puts the model's own one-step samples into the context (parallel
+/// scheduled sampling): one pass over the batch as the network would read
+/// it gives every frame's change distribution given the history; each
+/// slot's change is drawn from it (temperature 1) and, for a share
+/// `share` of the frames with a previous frame, the drawn frame replaces
+/// what the network reads there (a slot whose draw is the escape keeps
+/// its value). The targets stay the true frames, so the second pass
+/// teaches the model to go on from its own kind of errors, as it must
+/// when it generates. `share` 0 leaves the examples as they are.
+pub fn add_own_samples(
+    net: &FrameNet,
+    exs: &mut [FrameExample],
+    share: f64,
+    rng: &mut StdRng,
+    dev: &Device,
+) -> Result<()> {
+    if share <= 0.0 || exs.is_empty() {
+        return Ok(());
+    }
+    let c = &net.cfg;
+    let s = c.slots;
+    let b = batch(c, exs, dev)?;
+    let h = net.global(&b.val, &b.chg, &b.cond)?;
+    let (bs, t1, dg) = h.dims3()?;
+    let t = t1 - 1;
+    let ctx = h.narrow(1, 0, t)?.reshape((bs * t, dg))?;
+    let x = net.local_states(&ctx, &b.inp, &b.vel, &b.prev)?;
+    let x = x.reshape((bs * t * s, c.d_local))?;
+    let probs = candle_nn::ops::softmax(&net.params.lin(&x, "rel")?, D::Minus1)?;
+    let probs = probs.to_dtype(candle_core::DType::F32)?.to_vec2::<f32>()?;
+    let bins = c.bins as i64;
+    let esc = c.esc() as usize;
+    for (i, e) in exs.iter_mut().enumerate() {
+        let (mut seen, hist) = match e.context.take() {
+            Some(x) => x,
+            None => (e.frames.clone(), e.hist.clone()),
+        };
+        let read = seen.clone();
+        let nf = e.frames.len() / s;
+        for f in 0..nf {
+            if rng.gen::<f64>() >= share {
+                continue;
+            }
+            let p1: &[u32] = match f {
+                0 => match hist.first() {
+                    Some(p) => p,
+                    None => continue,
+                },
+                _ => &read[(f - 1) * s..f * s],
+            };
+            for k in 0..s {
+                let row = &probs[(i * t + f) * s + k];
+                let mut u = rng.gen::<f32>() * row.iter().sum::<f32>();
+                let mut cls = row.len() - 1;
+                for (j, &p) in row.iter().enumerate() {
+                    if u < p {
+                        cls = j;
+                        break;
+                    }
+                    u -= p;
+                }
+                if cls >= esc {
+                    continue;
+                }
+                let y = p1[k] as i64 + cls as i64 - c.radius as i64;
+                let y = if c.wraps(k) {
+                    y.rem_euclid(bins)
+                } else {
+                    y.clamp(0, bins - 1)
+                };
+                seen[f * s + k] = y as u32;
+            }
+        }
+        e.context = Some((seen, hist));
+    }
+    Ok(())
+}
+
+/// A standard normal draw (Box–Muller).
+fn gaussian(rng: &mut StdRng) -> f64 {
+    let u1: f64 = rng.gen::<f64>().max(f64::MIN_POSITIVE);
+    let u2: f64 = rng.gen();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
 /// Value slots of whole frames (the separator dropped).
@@ -243,6 +372,7 @@ pub fn example(
         hist,
         cond,
         classes,
+        context: None,
     }
 }
 
@@ -269,7 +399,7 @@ pub struct FrameBatch {
     pub t: usize,
 }
 
-pub fn batch(cfg: &FrameConfig, exs: &[FrameExample], dev: &Device) -> Result<FrameBatch> {
+pub fn batch<'a>(cfg: &FrameConfig, exs: &'a [FrameExample], dev: &Device) -> Result<FrameBatch> {
     let s = cfg.slots;
     let b = exs.len();
     let t = exs
@@ -299,25 +429,33 @@ pub fn batch(cfg: &FrameConfig, exs: &[FrameExample], dev: &Device) -> Result<Fr
             cls[ci].1.push(idx as u32);
         }
         let nf = e.frames.len() / s;
-        let get = |f: isize| -> Option<&[u32]> {
+        let at = |frames: &'a [u32], hist: &'a [Vec<u32>], f: isize| -> Option<&'a [u32]> {
             if f >= 0 {
-                Some(&e.frames[f as usize * s..(f as usize + 1) * s])
+                Some(&frames[f as usize * s..(f as usize + 1) * s])
             } else {
-                e.hist.get((-f - 1) as usize).map(|v| v.as_slice())
+                hist.get((-f - 1) as usize).map(|v| v.as_slice())
             }
+        };
+        // What the network reads (noisy under context noise) and what it
+        // is scored on (always the true frame).
+        let (cf, ch) = match &e.context {
+            Some((f, h)) => (f.as_slice(), h.as_slice()),
+            None => (e.frames.as_slice(), e.hist.as_slice()),
         };
         for f in 0..nf {
             frames += 1;
             frame_w[i * t + f] = 1.0;
-            let cur = get(f as isize).expect("in window");
-            let p1 = get(f as isize - 1);
-            let p2 = get(f as isize - 2);
+            let cur = at(&e.frames, &e.hist, f as isize).expect("in window");
+            let seen = at(cf, ch, f as isize).expect("in window");
+            let p1 = at(cf, ch, f as isize - 1);
+            let p2 = at(cf, ch, f as isize - 2);
+            let seen_changes = frame_changes(cfg, seen, p1);
             let changes = frame_changes(cfg, cur, p1);
             let (v, p) = local_context(cfg, p1, p2);
             let base = (i * t + f) * s;
             for k in 0..s {
-                val[base + k] = cur[k];
-                chg[base + k] = changes[k];
+                val[base + k] = seen[k];
+                chg[base + k] = seen_changes[k];
                 vel[base + k] = v[k];
                 prev[base + k] = p[k];
                 if k > 0 {

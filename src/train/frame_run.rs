@@ -5,7 +5,10 @@
 
 use super::baselines;
 use super::data::{self, Corpus, Sequence};
-use super::frame::{batch, example, losses, value_frames, FrameExample, FrameNet};
+use super::frame::{
+    add_context_noise, add_own_samples, batch, example, losses, value_frames, FrameExample,
+    FrameNet,
+};
 use super::model::AdamW;
 use super::RunSettings;
 use crate::lm::bits_per_frame;
@@ -162,7 +165,7 @@ pub fn train_step(
         let n = values.len() / c.slots;
         let w = window.min(n);
         let start = rng.gen_range(0..=n - w);
-        exs.push(example(
+        let mut ex = example(
             c,
             vocab,
             values,
@@ -172,7 +175,12 @@ pub fn train_step(
             as_cls,
             s.keep_label,
             rng,
-        ));
+        );
+        add_context_noise(c, &mut ex, s.context_noise, rng);
+        exs.push(ex);
+    }
+    if !as_cls {
+        add_own_samples(net, &mut exs, s.own_context, rng, dev)?;
     }
     let b = batch(c, &exs, dev)?;
     let l = losses(net, &b)?;

@@ -54,6 +54,22 @@ pub struct RunSettings {
     /// this label kind gets the same share (None = length-weighted).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub balance: Option<String>,
+    /// Frame model: the largest noise (in bins, a standard deviation) put
+    /// on the context frames the network reads while the targets stay the
+    /// true frames, so it learns to go on from imperfect history, as it
+    /// must from its own samples (0 = clean context; see
+    /// `frame::add_context_noise`).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub context_noise: f64,
+    /// Frame model: the share of context frames replaced by the model's
+    /// own one-step samples before each step (parallel scheduled
+    /// sampling; `frame::add_own_samples`); 0 = off.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub own_context: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 /// One logged point.

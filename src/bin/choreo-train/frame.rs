@@ -77,6 +77,8 @@ pub(crate) fn frame(a: FrameArgs, engine: &choreo::lm::engine::Engine) -> Result
             max_seconds: a.max_seconds,
             corpus_weights: parse_corpus_weights(&a.corpus_weight)?,
             balance: a.balance.clone(),
+            context_noise: a.context_noise,
+            own_context: a.own_context,
         },
     };
     if a.untrained {

@@ -225,6 +225,36 @@ struct FrameArgs {
     /// Bandai's runs and raised hands, short takes, as often as its walks).
     #[arg(long, value_name = "KIND")]
     balance: Option<String>,
+    /// Train on noisy history: each training window draws a noise level
+    /// up to this many bins (a standard deviation; 1 bin = 1° of a joint
+    /// angle) and every context frame the network reads (the global
+    /// input and the local decoder's previous frames) gets that much
+    /// Gaussian noise per slot, while the frame to predict stays true; the
+    /// model learns to go on from imperfect history, as it must from its
+    /// own samples. Held-out bits are scored on clean context. 0 = off.
+    #[arg(long, default_value_t = 0.0, value_parser = non_negative)]
+    context_noise: f64,
+    /// Train on the model's own samples (parallel scheduled sampling):
+    /// before each step the network reads the batch once, draws every
+    /// frame's next frame from its own distribution, and this share of
+    /// the context frames (0–1) is replaced by those draws while the
+    /// targets stay true. One more forward pass a step. 0 = off.
+    #[arg(long, default_value_t = 0.0, value_parser = share)]
+    own_context: f64,
+}
+
+fn share(s: &str) -> std::result::Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if (0.0..=1.0).contains(&x) => Ok(x),
+        _ => Err(format!("{s:?} is not a share between 0 and 1")),
+    }
+}
+
+fn non_negative(s: &str) -> std::result::Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() && x >= 0.0 => Ok(x),
+        _ => Err(format!("{s:?} is not a finite number ≥ 0")),
+    }
 }
 
 #[derive(Subcommand)]
