@@ -102,6 +102,17 @@ impl FrameConfig {
         }
     }
 
+    /// The bin a change code leads to from bin `from` (the inverse of
+    /// [`FrameConfig::change`]; clamped into the bins, as the generator
+    /// draws); None for the escape and the non-change codes.
+    pub fn apply_change(&self, from: u32, code: u32) -> Option<u32> {
+        if code >= self.esc() {
+            return None;
+        }
+        let r = self.radius as i64;
+        Some((from as i64 + code as i64 - r).clamp(0, self.bins as i64 - 1) as u32)
+    }
+
     pub fn validate(&self, file: &str) -> Result<(), super::LmError> {
         let bad = |field: &str, reason: String| super::LmError::invalid(file, field, reason);
         super::check_heads(file, self.d_global, self.global_heads)?;

@@ -492,8 +492,8 @@ fn draw(
     let k = sampling.draw_keeping(rel, rng, |i| {
         near > 0 && i != c.esc() as usize && (i as i64 - r0).abs() <= near
     }) as u32;
-    if k != c.esc() {
-        return (p as i64 + k as i64 - r0).clamp(0, bins - 1) as u32;
+    if let Some(b) = c.apply_change(p, k) {
+        return b;
     }
     let mut masked = abs_pulled();
     for (b, x) in masked.iter_mut().enumerate() {

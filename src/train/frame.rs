@@ -184,8 +184,8 @@ pub struct FrameExample {
     /// Class targets: (kind index, class index).
     pub classes: Vec<(usize, usize)>,
     /// The frames and history as the network reads them when they differ
-    /// from the true ones (context noise, [`add_context_noise`]); the
-    /// targets are always `frames`.
+    /// from the true ones ([`add_context_noise`], [`add_own_samples`]);
+    /// the targets are always `frames`.
     pub context: Option<(Vec<u32>, Vec<Vec<u32>>)>,
 }
 
@@ -213,7 +213,7 @@ pub fn add_context_noise(
         v.iter()
             .enumerate()
             .map(|(i, &x)| {
-                let d = (gaussian(rng) * sigma).round() as i64;
+                let d = (crate::motion::keypoints::gaussian(rng) * sigma).round() as i64;
                 let y = x as i64 + d;
                 let y = if cfg.wraps(i % s) {
                     y.rem_euclid(bins)
@@ -235,7 +235,7 @@ pub fn add_context_noise(
 /// slot's change is drawn from it (temperature 1) and, for a share
 /// `share` of the frames with a previous frame, the drawn frame replaces
 /// what the network reads there (a slot whose draw is the escape keeps
-/// its value). The targets stay the true frames, so the second pass
+/// its value; a change is clamped into the bins, as the generator does). The targets stay the true frames, so the second pass
 /// teaches the model to go on from its own kind of errors, as it must
 /// when it generates. `share` 0 leaves the examples as they are.
 pub fn add_own_samples(
@@ -257,10 +257,15 @@ pub fn add_own_samples(
     let ctx = h.narrow(1, 0, t)?.reshape((bs * t, dg))?;
     let x = net.local_states(&ctx, &b.inp, &b.vel, &b.prev)?;
     let x = x.reshape((bs * t * s, c.d_local))?;
-    let probs = candle_nn::ops::softmax(&net.params.lin(&x, "rel")?, D::Minus1)?;
-    let probs = probs.to_dtype(candle_core::DType::F32)?.to_vec2::<f32>()?;
-    let bins = c.bins as i64;
-    let esc = c.esc() as usize;
+    let logits = net
+        .params
+        .lin(&x, "rel")?
+        .to_dtype(candle_core::DType::F32)?
+        .to_vec2::<f32>()?;
+    let plain = crate::lm::Sampling {
+        temperature: 1.0,
+        ..Default::default()
+    };
     for (i, e) in exs.iter_mut().enumerate() {
         let (mut seen, hist) = match e.context.take() {
             Some(x) => x,
@@ -280,38 +285,15 @@ pub fn add_own_samples(
                 _ => &read[(f - 1) * s..f * s],
             };
             for k in 0..s {
-                let row = &probs[(i * t + f) * s + k];
-                let mut u = rng.gen::<f32>() * row.iter().sum::<f32>();
-                let mut cls = row.len() - 1;
-                for (j, &p) in row.iter().enumerate() {
-                    if u < p {
-                        cls = j;
-                        break;
-                    }
-                    u -= p;
+                let code = plain.draw(&logits[(i * t + f) * s + k], rng) as u32;
+                if let Some(b) = c.apply_change(p1[k], code) {
+                    seen[f * s + k] = b;
                 }
-                if cls >= esc {
-                    continue;
-                }
-                let y = p1[k] as i64 + cls as i64 - c.radius as i64;
-                let y = if c.wraps(k) {
-                    y.rem_euclid(bins)
-                } else {
-                    y.clamp(0, bins - 1)
-                };
-                seen[f * s + k] = y as u32;
             }
         }
         e.context = Some((seen, hist));
     }
     Ok(())
-}
-
-/// A standard normal draw (Box–Muller).
-fn gaussian(rng: &mut StdRng) -> f64 {
-    let u1: f64 = rng.gen::<f64>().max(f64::MIN_POSITIVE);
-    let u2: f64 = rng.gen();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
 /// Value slots of whole frames (the separator dropped).
@@ -449,8 +431,14 @@ pub fn batch<'a>(cfg: &FrameConfig, exs: &'a [FrameExample], dev: &Device) -> Re
             let seen = at(cf, ch, f as isize).expect("in window");
             let p1 = at(cf, ch, f as isize - 1);
             let p2 = at(cf, ch, f as isize - 2);
-            let seen_changes = frame_changes(cfg, seen, p1);
             let changes = frame_changes(cfg, cur, p1);
+            let noisy_changes;
+            let seen_changes = if e.context.is_some() {
+                noisy_changes = frame_changes(cfg, seen, p1);
+                &noisy_changes
+            } else {
+                &changes
+            };
             let (v, p) = local_context(cfg, p1, p2);
             let base = (i * t + f) * s;
             for k in 0..s {

@@ -1,7 +1,129 @@
-//! The frame model: training (the loop is `choreo::train::frame_run`),
+//! The frame model: its flags, training (the loop is `choreo::train::frame_run`),
 //! export with its parity check, and the per-corpus table.
 
 use super::*;
+
+/// `choreo-train frame`'s flags.
+#[derive(Args, Clone)]
+pub(crate) struct FrameArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// Output folder: checkpoint (resumable) and the final metrics.
+    #[arg(long)]
+    out: PathBuf,
+    /// Continue the run saved in --out.
+    #[arg(long)]
+    resume: bool,
+    /// Start a new run from the weights of this frame-model checkpoint
+    /// folder, or of an exported model folder such as models/default (its
+    /// vocabulary too; an export's fitted class heads are not taken);
+    /// parameters it lacks keep their fresh initialisation (e.g.
+    /// `g_cond_all` when adding --cond-every), except whole blocks it
+    /// lacks (more --global-layers or --local-layers than the parent):
+    /// those start as the identity, so the deeper model begins where
+    /// its parent ended.
+    #[arg(long, conflicts_with = "resume")]
+    init_from: Option<PathBuf>,
+    /// Export the configured network with its random initial weights to
+    /// --out/export and stop (no training, no evaluation): for timing
+    /// bigger models (`choreo bench model`) before spending CPU on them.
+    #[arg(long, conflicts_with_all = ["resume", "init_from"])]
+    untrained: bool,
+    /// Feed the conditioning into every frame's global input, not only
+    /// position 0, and train with whole-conditioning dropout (guidance).
+    #[arg(long)]
+    cond_every: bool,
+    /// The axes of the root velocity slots: `world` (the scene's x, z) or
+    /// `heading` (sideways, forward in the pelvis's heading). With
+    /// --init-from it re-expresses the parent's slots (the weights then
+    /// relearn what the two slots mean). Default: the parent's, or world.
+    #[arg(long, value_parser = choreo::tokenize::vocab::RootVelocity::parse)]
+    root_velocity: Option<choreo::tokenize::vocab::RootVelocity>,
+    /// Largest per-frame change (bins) the change head names.
+    #[arg(long, default_value_t = 24)]
+    radius: usize,
+    #[arg(long, default_value_t = 16)]
+    d_emb: usize,
+    #[arg(long, default_value_t = 192)]
+    d_global: usize,
+    #[arg(long, default_value_t = 4)]
+    global_layers: usize,
+    #[arg(long, default_value_t = 4)]
+    global_heads: usize,
+    #[arg(long, default_value_t = 64)]
+    d_local: usize,
+    #[arg(long, default_value_t = 2)]
+    local_layers: usize,
+    #[arg(long, default_value_t = 4)]
+    local_heads: usize,
+    /// Frames of global context (200 = 10 s at 20 fps).
+    #[arg(long, default_value_t = 64)]
+    frames: usize,
+    #[arg(long, default_value_t = 20.0)]
+    fps: f64,
+    /// Label kinds the conditioning may carry.
+    #[arg(long = "cond", default_values_t = ["genre", "situation", "dancer", "content", "style"].map(String::from).to_vec())]
+    cond: Vec<String>,
+    /// Label kinds to learn class heads for (none = no heads).
+    #[arg(long = "classify")]
+    classify: Vec<String>,
+    /// Total steps (default 4000). With --resume: a new total, and the
+    /// cosine schedule is recomputed over it.
+    #[arg(long)]
+    steps: Option<usize>,
+    #[arg(long, default_value_t = 8)]
+    batch: usize,
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    #[arg(long, default_value_t = 100)]
+    eval_every: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Stop after this many seconds of training, resumed runs included
+    /// (0 = run all steps).
+    #[arg(long, default_value_t = 0.0)]
+    max_seconds: f64,
+    /// Draw this corpus's training frames W times as often as a length-
+    /// weighted draw would (NAME=W, repeatable; e.g. `--corpus-weight
+    /// bandai=2`). The held-out sets are unchanged.
+    #[arg(long = "corpus-weight", value_name = "NAME=W")]
+    corpus_weight: Vec<String>,
+    /// Draw the sequences that carry this label kind so that each of its
+    /// values gets the same share of their draws (e.g. `--balance content`:
+    /// Bandai's runs and raised hands, short takes, as often as its walks).
+    #[arg(long, value_name = "KIND")]
+    balance: Option<String>,
+    /// Train on noisy history: each training window draws a noise level
+    /// up to this many bins (a standard deviation; 1 bin = 1° of a joint
+    /// angle) and every context frame the network reads (the global
+    /// input and the local decoder's previous frames) gets that much
+    /// Gaussian noise per slot, while the frame to predict stays true; the
+    /// model learns to go on from imperfect history, as it must from its
+    /// own samples. Held-out bits are scored on clean context. 0 = off.
+    #[arg(long, default_value_t = 0.0, value_parser = non_negative)]
+    context_noise: f64,
+    /// Train on the model's own samples (parallel scheduled sampling):
+    /// before each step the network reads the batch once, draws every
+    /// frame's next frame from its own distribution, and this share of
+    /// the context frames (0–1) is replaced by those draws while the
+    /// targets stay true. One more forward pass a step. 0 = off.
+    #[arg(long, default_value_t = 0.0, value_parser = share)]
+    own_context: f64,
+}
+
+fn share(s: &str) -> std::result::Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if (0.0..=1.0).contains(&x) => Ok(x),
+        _ => Err(format!("{s:?} is not a share between 0 and 1")),
+    }
+}
+
+fn non_negative(s: &str) -> std::result::Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() && x >= 0.0 => Ok(x),
+        _ => Err(format!("{s:?} is not a finite number ≥ 0")),
+    }
+}
 
 pub(crate) fn frame(a: FrameArgs, engine: &choreo::lm::engine::Engine) -> Result<()> {
     let mut kinds = a.cond.clone();

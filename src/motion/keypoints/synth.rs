@@ -65,7 +65,8 @@ impl SynthOptions {
     }
 }
 
-fn gaussian(rng: &mut impl Rng) -> f64 {
+/// A standard normal draw (Box–Muller); also the trainer's context noise.
+pub(crate) fn gaussian(rng: &mut impl Rng) -> f64 {
     let u1: f64 = rng.gen_range(f64::EPSILON..1.0);
     let u2: f64 = rng.gen::<f64>();
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
