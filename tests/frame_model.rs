@@ -268,6 +268,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         context: 0,
         draws: 1,
         pace: 0.0,
+        jerk: 0.0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;

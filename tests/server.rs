@@ -625,6 +625,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             context: 0,
             draws: 0,
             pace: 0.0,
+            jerk: 0.0,
         }),
         exemplar: String::new(),
         candidates: 0,
@@ -979,6 +980,36 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         generate_refused(h, json!({"frames": 4, "sampling": bad}), "sampling.pace").await;
     }
 
+    // jerk, the price on each candidate frame's jerk: the same frames over
+    // both transports, the answer says it; with one candidate or past 100
+    // a 400 naming it.
+    let mut g = greq.clone();
+    let gs = g.sampling.as_mut().unwrap();
+    (gs.draws, gs.jerk) = (3, 2.0);
+    let g = client.generate(g).await.unwrap().into_inner();
+    assert_eq!(g.sampling.as_ref().unwrap().jerk, 2.0);
+    let req = json!({
+        "labels": {"genre": "BR"}, "frames": 24,
+        "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
+        "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
+        "sampling": {"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "draws": 3, "jerk": 2.0}
+    });
+    let (status, r) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
+            .await
+            .unwrap();
+    assert_eq!(status, 200, "jerk: {r}");
+    assert_eq!(r["sampling"]["jerk"], json!(2.0), "{}", r["sampling"]);
+    let rr = flat_rotations(&r["output"]["rotations"]);
+    let gr = g.output.unwrap().rotations;
+    assert!(gr.iter().zip(&rr).all(|(a, b)| (a - b).abs() < 1e-12));
+    for bad in [
+        json!({"draws": 1, "jerk": 3.0}),
+        json!({"draws": 2, "jerk": 101.0}),
+    ] {
+        generate_refused(h, json!({"frames": 4, "sampling": bad}), "sampling.jerk").await;
+    }
+
     // A request naming no max_jump, top_p or posture gets the model's
     // default for its labels' kinds (the bundled manifest: posture 1.5 and
     // max_jump 12 for Bandai's style, posture 2 and max_jump 24 for its
@@ -988,12 +1019,12 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     // Bandai's style also draws 4 candidate frames a frame (draws), the
     // others 1.
     for (labels, sampling, (want, top_p, posture, draws)) in [
-        (json!({"style": "angry"}), json!(null), (12, 0.95, 1.5, 4)),
+        (json!({"style": "angry"}), json!(null), (12, 1.0, 1.5, 4)),
         (json!({"content": "walk"}), json!(null), (24, 0.95, 2.0, 1)),
         (
             json!({"content": "walk", "style": "angry"}),
             json!(null),
-            (12, 0.95, 2.0, 4),
+            (12, 1.0, 2.0, 4),
         ),
         (json!({"genre": "BR"}), json!(null), (48, 1.0, 2.0, 1)),
         (
@@ -1004,12 +1035,12 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         (
             json!({"style": "angry"}),
             json!({"max_jump": 30, "posture": 0}),
-            (30, 0.95, 0.0, 4),
+            (30, 1.0, 0.0, 4),
         ),
         (
             json!({"style": "angry"}),
             json!({"draws": 1}),
-            (12, 0.95, 1.5, 1),
+            (12, 1.0, 1.5, 1),
         ),
         (
             json!({"genre": "BR"}),
@@ -1034,6 +1065,10 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         let s = &r["sampling"];
         assert_eq!(s["max_jump"], want, "{labels}: {s}");
         assert_eq!(s["draws"], draws, "{labels}: {s}");
+        // The jerk price comes with the style's candidates (none to price
+        // with one).
+        let jerk = if draws > 1 { 1.0 } else { 0.0 };
+        assert_eq!(s["jerk"].as_f64(), Some(jerk), "{labels}: {s}");
         assert_eq!(
             (s["top_p"].as_f64(), s["posture"].as_f64()),
             (Some(top_p), Some(posture)),
@@ -1049,7 +1084,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     // 12 and posture 1.5, its content max_jump 24 and posture 2, AIST++'s
     // genre max_jump 48, top_p 1 and posture 2.
     for (kind, value, want, draws) in [
-        ("style", "angry", (12, 0.95, 1.5), 4),
+        ("style", "angry", (12, 1.0, 1.5), 4),
         ("content", "walk", (24, 0.95, 2.0), 1),
         ("genre", "BR", (48, 1.0, 2.0), 1),
     ] {
@@ -1068,6 +1103,8 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         assert_eq!((s.keep_near, s.temperature), (2, 1.0));
         assert_eq!((s.max_jump, s.top_p, s.posture), want, "{kind}");
         assert_eq!(s.draws, draws, "{kind}");
+        let jerk = if draws > 1 { 1.0 } else { -1.0 };
+        assert_eq!(s.jerk, jerk, "{kind}");
     }
 
     // Streaming gives the one-shot frames, one message each.
@@ -1202,18 +1239,18 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .unwrap();
     for want in [
         // The prompt request, the top_p 0, keep_near, max_jump, posture,
-        // context, draws and pace ones, the nine per-kind defaults; the
-        // 400s: the bad exemplar, the bad feet, keep_near 65, max_jump 181,
-        // posture 11, context 201, draws 17, pace with one draw and pace
-        // 101, the bad label and the over-long request; over gRPC the
-        // prompt request, best of 3, steered, root model and feet, feet
-        // pinned, exemplar none, top_p 0, keep_near 1, max_jump 2, posture
-        // 1.5, context 8, draws 2, pace 8, the style, content and genre
+        // context, draws, pace and jerk ones, the nine per-kind defaults;
+        // the 400s: the bad exemplar, the bad feet, keep_near 65, max_jump
+        // 181, posture 11, context 201, draws 17, pace and jerk with one
+        // draw and at 101, the bad label and the over-long request; over
+        // gRPC the prompt request, best of 3, steered, root model and feet,
+        // feet pinned, exemplar none, top_p 0, keep_near 1, max_jump 2,
+        // posture 1.5, context 8, draws 2, pace 8, jerk 2, the style, content and genre
         // defaults; a steered stream, a feet stream, a pinned stream, and a
         // stream asking for 2 candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 17",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 11",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 17",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 18",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 13",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 18",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 4",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",

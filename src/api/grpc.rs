@@ -84,6 +84,11 @@ impl Choreo for ChoreoGrpc {
                 } else {
                     r.sampling.pace
                 },
+                jerk: if r.sampling.jerk == 0.0 {
+                    -1.0
+                } else {
+                    r.sampling.jerk
+                },
             }),
         }))
     }

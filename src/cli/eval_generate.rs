@@ -7,23 +7,23 @@ use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use std::path::{Path, PathBuf};
 
-/// `T:K:P[:G[:N[:J[:W[:C[:D[:A]]]]]]]` (temperature, top-k, top-p,
-/// guidance, keep_near, max_jump, posture, context, draws, pace), or
-/// `greedy`.
+/// `T:K:P[:G[:N[:J[:W[:C[:D[:A[:R]]]]]]]]` (temperature, top-k, top-p,
+/// guidance, keep_near, max_jump, posture, context, draws, pace, jerk),
+/// or `greedy`.
 pub fn parse_sampling(s: &str) -> Result<Sampling> {
     if s == "greedy" {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    if !(3..=10).contains(&parts.len()) {
+    if !(3..=11).contains(&parts.len()) {
         bail!(
-            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C[:D[:A]]]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context[:draws[:pace]]]]]]]) or greedy"
+            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C[:D[:A[:R]]]]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context[:draws[:pace[:jerk]]]]]]]]) or greedy"
         );
     }
     // The optional fields, each its "off" value when left out.
     let field = |i: usize, off: &'static str| parts.get(i).copied().unwrap_or(off);
     let (t, k, p) = (parts[0], parts[1], parts[2]);
-    let (g, n, j, w, c, d, a) = (
+    let (g, n, j, w, c, d, a, r) = (
         field(3, "1"),
         field(4, "0"),
         field(5, "0"),
@@ -31,6 +31,7 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         field(7, "0"),
         field(8, "1"),
         field(9, "0"),
+        field(10, "0"),
     );
     let sm = Sampling {
         temperature: t
@@ -64,6 +65,9 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         pace: a
             .parse()
             .with_context(|| format!("--sampling: pace '{a}'"))?,
+        jerk: r
+            .parse()
+            .with_context(|| format!("--sampling: jerk '{r}'"))?,
     };
     sm.validate()
         .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;

@@ -253,7 +253,7 @@ pub struct FrameManifest {
     /// (docs/RESULTS.md, "Sampling defaults per label kind").
     #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub max_jump_by_kind: std::collections::BTreeMap<String, u32>,
-    /// The `top_p`, `posture`, `draws` and `pace` a request gets when it names them not,
+    /// The `top_p`, `posture`, `draws`, `pace` and `jerk` a request gets when it names them not,
     /// per label kind it asks for (the first of its kinds, in name order,
     /// that lists the field; none: the recommended sampling's). `choreo
     /// eval generate` scores them per corpus (docs/RESULTS.md, "AIST++ dance: the
@@ -277,6 +277,10 @@ pub struct KindSampling {
     /// candidates to choose among.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pace: Option<f64>,
+    /// The jerk price (`sampling.jerk`), where `draws` leaves candidates
+    /// to choose among.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub jerk: Option<f64>,
 }
 
 pub const FRAME_KIND: &str = "motion-frame-lm";
@@ -425,12 +429,14 @@ impl FrameManifest {
                     format!("{n} (want 1 to {most})"),
                 ));
             }
-            if let Some(a) = d.pace.filter(|a| !(0.0..=100.0).contains(a)) {
-                return Err(super::LmError::invalid(
-                    &name,
-                    format!("{field}.pace"),
-                    format!("{a} (want 0 to 100)"),
-                ));
+            for (key, v) in [("pace", d.pace), ("jerk", d.jerk)] {
+                if let Some(a) = v.filter(|a| !(0.0..=100.0).contains(a)) {
+                    return Err(super::LmError::invalid(
+                        &name,
+                        format!("{field}.{key}"),
+                        format!("{a} (want 0 to 100)"),
+                    ));
+                }
             }
         }
         let (_, g) =

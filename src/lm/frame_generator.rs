@@ -291,11 +291,26 @@ impl FrameGenerator {
                 .map(|(f, _, _)| super::pace::frame_pace(vocab, &c, p2.as_deref(), p, f))
                 .collect()
         });
+        // The jerk price (it needs three frames before).
+        let p3 = self.last(3).map(|f| f.to_vec());
+        let jerks: Option<Vec<f64>> = match (p3.as_deref(), p2.as_deref(), p1.as_deref()) {
+            (Some(a), Some(b), Some(d)) if self.sampling.jerk > 0.0 && cands.len() > 1 => Some(
+                cands
+                    .iter()
+                    .map(|(f, _, _)| {
+                        self.sampling.jerk * super::typical::frame_jerk(&c, [a, b, d], f)
+                    })
+                    .collect(),
+            ),
+            _ => None,
+        };
         let (mut frame, kept) = super::typical::most_typical(cands, |i| {
-            self.pace
-                .as_ref()
-                .zip(paces.as_ref())
-                .map_or(0.0, |(h, ps)| h.cost(ps[i]))
+            jerks.as_ref().map_or(0.0, |j| j[i])
+                + self
+                    .pace
+                    .as_ref()
+                    .zip(paces.as_ref())
+                    .map_or(0.0, |(h, ps)| h.cost(ps[i]))
         });
         if let (Some(h), Some(ps)) = (self.pace.as_mut(), &paces) {
             h.push(ps[kept]);
@@ -450,19 +465,6 @@ fn draw(
     };
     let bins = c.bins as i64;
     let r0 = c.radius as i64;
-    let moved;
-    let rel = match pull {
-        Some(u) => {
-            let mut r = rel.to_vec();
-            for (i, x) in r[..=2 * r0 as usize].iter_mut().enumerate() {
-                *x += u[(p as i64 + i as i64 - r0).clamp(0, bins - 1) as usize];
-            }
-            moved = r;
-            &moved[..]
-        }
-        None => rel,
-    };
-    let near = sampling.keep_near as i64;
     // max_jump: a bin the slot may reach (an angle's the shorter way round). The
     // change window's targets lie within r0 bins, so they need masking
     // only under a limit below r0; the escape only when no bin outside the
@@ -472,6 +474,27 @@ fn draw(
         let d = (b - p as i64).abs();
         jump == 0 || if wraps { d.min(bins - d) } else { d } <= jump
     };
+    let outside = |b: i64| (b - p as i64).abs() > r0 && reach(b);
+    let moved;
+    let rel = match pull {
+        Some(u) => {
+            let mut r = rel.to_vec();
+            for (i, x) in r[..=2 * r0 as usize].iter_mut().enumerate() {
+                *x += u[(p as i64 + i as i64 - r0).clamp(0, bins - 1) as usize];
+            }
+            // The escape is pulled too: by its bins' offsets averaged under
+            // the absolute head's distribution over them (the bins it draws
+            // from), so the product of the model and the pull is one
+            // distribution over bins. Left unpulled, a slot away from its
+            // posture, whose every change the pull lowers, escaped more
+            // often and jumped (docs/RESULTS.md, "Session 40").
+            r[c.esc() as usize] += escape_pull(abs, u, outside);
+            moved = r;
+            &moved[..]
+        }
+        None => rel,
+    };
+    let near = sampling.keep_near as i64;
     let can_escape = escapable(p as i64, r0, jump, bins, wraps);
     let mut limited;
     let rel = if jump > 0 && (jump < r0 || !can_escape) {
@@ -497,11 +520,38 @@ fn draw(
     }
     let mut masked = abs_pulled();
     for (b, x) in masked.iter_mut().enumerate() {
-        if (b as i64 - p as i64).abs() <= r0 || !reach(b as i64) {
+        if !outside(b as i64) {
             *x = f32::NEG_INFINITY;
         }
     }
     sampling.draw(&masked, rng) as u32
+}
+
+/// The pull's offset to the escape class: ln Σ q(b) e^{u(b)} over the bins
+/// an escape may land on (`outside`), q the absolute head's distribution
+/// over them (0 when there are none).
+fn escape_pull(abs: &[f32], u: &[f32], outside: impl Fn(i64) -> bool) -> f32 {
+    let m = abs
+        .iter()
+        .enumerate()
+        .filter(|&(b, _)| outside(b as i64))
+        .fold(f32::NEG_INFINITY, |a, (_, &x)| a.max(x));
+    if m == f32::NEG_INFINITY {
+        return 0.0;
+    }
+    let (mut z, mut zu) = (0.0f64, 0.0f64);
+    for (b, (&x, &o)) in abs.iter().zip(u).enumerate() {
+        if outside(b as i64) {
+            let q = ((x - m) as f64).exp();
+            z += q;
+            zu += q * (o as f64).exp();
+        }
+    }
+    if zu > 0.0 {
+        (zu / z).ln() as f32
+    } else {
+        f32::NEG_INFINITY
+    }
 }
 
 /// Whether a slot at bin `p` can escape its change window (a bin more than
@@ -552,6 +602,54 @@ mod tests {
             let h = from_bin_2(height);
             assert!(h <= 2 + 48, "the height jumped from bin 2 to {h}");
         }
+    }
+
+    #[test]
+    fn the_pull_weighs_the_escape_by_the_bins_it_lands_on() {
+        // The model: every change and the escape alike (18 classes), the
+        // absolute head flat. The pull leaves two bins, one step up from
+        // the slot (bin 101) and one far (bin 300), and all but rules out
+        // the rest. The product of the two puts 1/18 on bin 101 and
+        // 1/18 · 1/343 on bin 300: an escape about one draw in 344. Left
+        // unpulled, the escape would take half the draws.
+        let c = crate::lm::frame::test_config();
+        let rel = vec![0.0f32; c.rel_classes()];
+        let abs = vec![0.0f32; c.bins];
+        let mut u = vec![-50.0f32; c.bins];
+        u[101] = 0.0;
+        u[300] = 0.0;
+        let sampling = Sampling {
+            temperature: 1.0,
+            ..Sampling::default()
+        };
+        let mut rng = StdRng::seed_from_u64(3);
+        let n = 4000;
+        let mut far = 0;
+        for _ in 0..n {
+            match draw(
+                &sampling,
+                &mut rng,
+                &c,
+                (&rel, &abs),
+                Some(&u),
+                Some(100),
+                true,
+            ) {
+                101 => {}
+                300 => far += 1,
+                b => panic!("drew bin {b}, which the pull all but rules out"),
+            }
+        }
+        assert!(far > 0 && far < n / 100, "{far} of {n} escaped");
+        // The escape's offset itself: the mean of e^u under the head over
+        // the bins it may land on.
+        let outside = |b: i64| (b - 100).abs() > c.radius as i64;
+        let half = vec![0.5f32.ln(); c.bins];
+        assert!((escape_pull(&abs, &half, outside) - 0.5f32.ln()).abs() < 1e-6);
+        let one = escape_pull(&abs, &u, outside);
+        let want = (1.0f64 / (c.bins - 2 * c.radius - 1) as f64).ln() as f32;
+        assert!((one - want).abs() < 1e-4, "{one} against {want}");
+        assert_eq!(escape_pull(&abs, &u, |_| false), 0.0);
     }
 
     #[test]

@@ -27,6 +27,7 @@ pub struct Named {
     pub posture: bool,
     pub draws: bool,
     pub pace: bool,
+    pub jerk: bool,
 }
 
 /// A loaded motion model of either kind: immutable, shared by requests.
@@ -95,7 +96,7 @@ impl MotionModel {
     }
 
     /// Fills in what a request for these label kinds did not name of
-    /// `max_jump`, `top_p`, `posture`, `draws` and `pace`: the model's defaults for those
+    /// `max_jump`, `top_p`, `posture`, `draws`, `pace` and `jerk`: the model's defaults for those
     /// kinds ([`Self::default_max_jump`], [`Self::kind_sampling`]). The
     /// service and `choreo eval generate --sampling default` both go
     /// through here, so what is measured as the default is what a request
@@ -124,9 +125,14 @@ impl MotionModel {
                 s.pace = a;
             }
         }
+        if let (false, Some(a)) = (named.jerk, d.jerk) {
+            if s.draws > 1 {
+                s.jerk = a;
+            }
+        }
     }
 
-    /// The `top_p`, `posture`, `draws` and `pace` defaults for a request asking for these
+    /// The `top_p`, `posture`, `draws`, `pace` and `jerk` defaults for a request asking for these
     /// label kinds and naming them not: per field, the first kind (in the
     /// order given) the manifest's `sampling_by_kind` lists it for.
     pub fn kind_sampling<'a>(
@@ -143,6 +149,7 @@ impl MotionModel {
                 out.posture = out.posture.or(d.posture);
                 out.draws = out.draws.or(d.draws);
                 out.pace = out.pace.or(d.pace);
+                out.jerk = out.jerk.or(d.jerk);
             }
         }
         out

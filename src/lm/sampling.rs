@@ -59,6 +59,16 @@ pub struct Sampling {
     /// each candidate's distance from typical, in nats per unit of log
     /// ratio.
     pub pace: f64,
+    /// Frame model only, with `draws` ≥ 2: how strongly the kept
+    /// candidate avoids jerk, the change of each joint angle's
+    /// acceleration over it and the three frames before
+    /// ([`super::typical::frame_jerk`], in bins, the root's rotation
+    /// counted three times: it swings the whole body). Added to each
+    /// candidate's distance from typical, in nats per bin; 0 = off. With
+    /// the whole nucleus (top-p 1) the candidates keep the fast tail of
+    /// each joint's change, and this keeps the one that does not jitter
+    /// (docs/RESULTS.md, "Session 40").
+    pub jerk: f64,
 }
 
 impl Default for Sampling {
@@ -75,6 +85,7 @@ impl Default for Sampling {
             context: 0,
             draws: 1,
             pace: 0.0,
+            jerk: 0.0,
         }
     }
 }
@@ -104,6 +115,7 @@ pub const RECOMMENDED: Sampling = Sampling {
     context: 0,
     draws: 1,
     pace: 0.0,
+    jerk: 0.0,
 };
 
 /// The most candidate frames `sampling.draws` may ask for.
@@ -175,6 +187,23 @@ impl Sampling {
                 format!(
                     "{} needs candidates to choose among (sampling.draws 2 or more; it is {})",
                     self.pace, self.draws
+                ),
+            ));
+        }
+        if !(self.jerk.is_finite() && (0.0..=100.0).contains(&self.jerk)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.jerk",
+                format!("{} (want 0 to 100; 0 = off)", self.jerk),
+            ));
+        }
+        if self.jerk > 0.0 && self.draws < 2 && self.temperature > 0.0 {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.jerk",
+                format!(
+                    "{} needs candidates to choose among (sampling.draws 2 or more; it is {})",
+                    self.jerk, self.draws
                 ),
             ));
         }

@@ -24,6 +24,29 @@ pub(super) fn most_typical(
     (frame, i)
 }
 
+/// How much a candidate frame `f` jerks after the three frames `before`
+/// (oldest first): the root of the summed squares, over the angle slots,
+/// of each angle's third difference in bins (the change of its
+/// acceleration; every step the shorter way round), the root joint's
+/// rotation (slots 0–2) counted three times: it turns every joint about
+/// the body's centre. The root's travel and height are not counted. A
+/// steady turn or a steady speeding-up costs nothing.
+pub(super) fn frame_jerk(c: &FrameConfig, before: [&[u32]; 3], f: &[u32]) -> f64 {
+    let bins = c.bins as i64;
+    let step = |to: u32, from: u32| {
+        let d = to as i64 - from as i64;
+        (d + bins / 2).rem_euclid(bins) - bins / 2
+    };
+    let [a, b, d] = before;
+    let mut sum = 0.0;
+    for s in (0..c.slots).filter(|&s| c.wraps(s)) {
+        let j = step(f[s], d[s]) - 2 * step(d[s], b[s]) + step(b[s], a[s]);
+        let w = if s < 3 { 3.0 } else { 1.0 };
+        sum += w * (j * j) as f64;
+    }
+    sum.sqrt()
+}
+
 fn log_softmax(x: &[f32]) -> Vec<f64> {
     let m = x.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b)) as f64;
     let z: f64 = x.iter().map(|&v| (v as f64 - m).exp()).sum();
@@ -97,6 +120,43 @@ mod tests {
         let (likely, h) = super::surprise_of(&c, (&peaked, &abs), Some(100), 100);
         let (rare, _) = super::surprise_of(&c, (&peaked, &abs), Some(100), 104);
         assert!(likely < h && rare > h, "{likely} {h} {rare}");
+    }
+
+    #[test]
+    fn jerk_is_the_third_difference_of_the_angles_root_rotation_thrice() {
+        let c = super::super::frame::test_config();
+        // Slots 0..39 angles (360 bins, wrapping), 39..42 the root's travel
+        // and height.
+        let frames = |f: &dyn Fn(usize, i64) -> i64| -> Vec<Vec<u32>> {
+            (0..4)
+                .map(|t| {
+                    (0..c.slots)
+                        .map(|s| f(s, t).rem_euclid(360) as u32)
+                        .collect()
+                })
+                .collect()
+        };
+        let jerk = |fr: &[Vec<u32>]| super::frame_jerk(&c, [&fr[0], &fr[1], &fr[2]], &fr[3]);
+        // Still, a steady turn (round the back: 355 → 1 → 7 → 13) and a
+        // steady speeding-up (1, 3, 5 bins a frame) cost nothing.
+        assert_eq!(jerk(&frames(&|_, _| 100)), 0.0);
+        assert_eq!(jerk(&frames(&|_, t| 355 + 6 * t)), 0.0);
+        assert_eq!(jerk(&frames(&|s, t| s as i64 + t * t)), 0.0);
+        // One joint jolts 4 bins off its steady path: 4; the root's
+        // rotation the same: √3 · 4; the root's travel: nothing.
+        let jolt = |slot: usize| {
+            let mut fr = frames(&|_, t| 50 + 2 * t);
+            fr[3][slot] += 4;
+            jerk(&fr)
+        };
+        assert!((jolt(10) - 4.0).abs() < 1e-12);
+        assert!((jolt(1) - 4.0 * 3f64.sqrt()).abs() < 1e-12);
+        assert_eq!(jolt(40), 0.0);
+        // The squares add: two joints jolting 3 and 4 bins, 5.
+        let mut fr = frames(&|_, _| 200);
+        fr[3][5] += 3;
+        fr[3][6] -= 4;
+        assert!((jerk(&fr) - 5.0).abs() < 1e-12);
     }
 
     #[test]

@@ -91,6 +91,7 @@ pub(super) fn named(s: &Option<pb::Sampling>) -> crate::service::generate::Named
         posture: s.posture != 0.0,
         draws: s.draws != 0,
         pace: s.pace != 0.0,
+        jerk: s.jerk != 0.0,
     }
 }
 
@@ -131,6 +132,12 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.pace.max(0.0)
     };
+    // proto3 again: 0 = the model's default price, negative = none.
+    let jerk = if s.jerk == 0.0 {
+        r.jerk
+    } else {
+        s.jerk.max(0.0)
+    };
     if !explicit(&s) {
         return crate::lm::Sampling {
             guidance,
@@ -139,6 +146,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
             context: s.context,
             draws,
             pace,
+            jerk,
             ..r
         };
     }
@@ -154,6 +162,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         context: s.context,
         draws,
         pace,
+        jerk,
     }
 }
 

@@ -208,6 +208,11 @@ pub struct SamplingJson {
     /// with `draws` 2 or more; 0 = off); absent = the model's default for
     /// the label kinds asked for where `draws` leaves a choice, else off.
     pub pace: Option<f64>,
+    /// How strongly the kept candidate avoids jerk (the change of each
+    /// joint angle's acceleration; frame model, with `draws` 2 or more;
+    /// 0 = off); absent = the model's default for the label kinds asked
+    /// for where `draws` leaves a choice, else off.
+    pub jerk: Option<f64>,
 }
 
 impl SamplingJson {
@@ -220,6 +225,7 @@ impl SamplingJson {
             posture: self.posture.is_some(),
             draws: self.draws.is_some(),
             pace: self.pace.is_some(),
+            jerk: self.jerk.is_some(),
         }
     }
 
@@ -240,6 +246,7 @@ impl SamplingJson {
                 context: self.context.unwrap_or(r.context),
                 draws: self.draws.unwrap_or(r.draws),
                 pace: self.pace.unwrap_or(r.pace),
+                jerk: self.jerk.unwrap_or(r.jerk),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -254,6 +261,7 @@ impl SamplingJson {
                 context: self.context.unwrap_or(r.context),
                 draws: self.draws.unwrap_or(r.draws),
                 pace: self.pace.unwrap_or(r.pace),
+                jerk: self.jerk.unwrap_or(r.jerk),
             },
         }
     }

@@ -33,6 +33,7 @@ mod synth;
 
 pub use measure::{joint_errors, Measure};
 pub use solve::{bridge, solve, SolveOptions, DEFAULT_SMOOTH_S, H36M_PELVIS_SHARE, PELVIS_SHARE};
+#[cfg(feature = "train")]
 pub(crate) use synth::gaussian;
 pub use synth::{synthesize, SynthOptions};
 
