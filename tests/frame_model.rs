@@ -763,6 +763,10 @@ fn bad_frame_manifests_are_clear_errors() {
             format!("sampling_by_kind.{}.pace", kinds[0]),
         ),
         (
+            serde_json::json!({kinds[0].clone(): {"jerk": -1.0}}),
+            format!("sampling_by_kind.{}.jerk", kinds[0]),
+        ),
+        (
             serde_json::json!({kinds[0].clone(): {"temp": 2.0}}),
             "temp".to_string(),
         ),
@@ -801,6 +805,21 @@ fn bad_frame_manifests_are_clear_errors() {
     };
     m5.fill_defaults([&kinds[0]], &mut s, named_pace);
     assert_eq!((s.draws, s.pace), (4, 0.0));
+    // So does its jerk price.
+    let m6 = with_s(serde_json::json!({kinds[0].clone(): {"draws": 4, "jerk": 1.0}})).unwrap();
+    let mut s = choreo::lm::sampling::RECOMMENDED;
+    m6.fill_defaults([&kinds[0]], &mut s, Default::default());
+    assert_eq!((s.draws, s.jerk), (4, 1.0));
+    let mut s = choreo::lm::sampling::RECOMMENDED;
+    m6.fill_defaults([&kinds[0]], &mut s, named);
+    assert_eq!((s.draws, s.jerk), (1, 0.0));
+    let mut s = choreo::lm::sampling::RECOMMENDED;
+    let named_jerk = choreo::lm::model::Named {
+        jerk: true,
+        ..Default::default()
+    };
+    m6.fill_defaults([&kinds[0]], &mut s, named_jerk);
+    assert_eq!((s.draws, s.jerk), (4, 0.0));
     let mut labels = Labels::new();
     labels.insert("style".into(), "furious".into());
     let dir2 = export(&net, &v);
