@@ -789,37 +789,28 @@ fn bad_frame_manifests_are_clear_errors() {
     m4.fill_defaults([&kinds[0]], &mut s, named);
     assert_eq!(s.draws, 1);
     assert_eq!(m4.kind_sampling([&other]), Default::default());
-    // A kind's pace hold comes with its draws; a request that names one
-    // draw gets none (nothing to choose among), one naming its pace keeps it.
-    let m5 = with_s(serde_json::json!({kinds[0].clone(): {"draws": 4, "pace": 5.0}})).unwrap();
-    let mut s = choreo::lm::sampling::RECOMMENDED;
-    m5.fill_defaults([&kinds[0]], &mut s, Default::default());
-    assert_eq!((s.draws, s.pace), (4, 5.0));
-    let mut s = choreo::lm::sampling::RECOMMENDED;
-    m5.fill_defaults([&kinds[0]], &mut s, named);
-    assert_eq!((s.draws, s.pace), (1, 0.0));
-    let mut s = choreo::lm::sampling::RECOMMENDED;
+    // A kind's pace hold and jerk price come with its draws; a request that
+    // names one draw gets neither (nothing to choose among), one naming
+    // the field keeps its own.
+    let m5 = with_s(serde_json::json!({kinds[0].clone(): {"draws": 4, "pace": 5.0, "jerk": 1.0}}))
+        .unwrap();
+    let prices = |named: choreo::lm::model::Named| {
+        let mut s = choreo::lm::sampling::RECOMMENDED;
+        m5.fill_defaults([&kinds[0]], &mut s, named);
+        (s.draws, s.pace, s.jerk)
+    };
+    assert_eq!(prices(Default::default()), (4, 5.0, 1.0));
+    assert_eq!(prices(named), (1, 0.0, 0.0));
     let named_pace = choreo::lm::model::Named {
         pace: true,
         ..Default::default()
     };
-    m5.fill_defaults([&kinds[0]], &mut s, named_pace);
-    assert_eq!((s.draws, s.pace), (4, 0.0));
-    // So does its jerk price.
-    let m6 = with_s(serde_json::json!({kinds[0].clone(): {"draws": 4, "jerk": 1.0}})).unwrap();
-    let mut s = choreo::lm::sampling::RECOMMENDED;
-    m6.fill_defaults([&kinds[0]], &mut s, Default::default());
-    assert_eq!((s.draws, s.jerk), (4, 1.0));
-    let mut s = choreo::lm::sampling::RECOMMENDED;
-    m6.fill_defaults([&kinds[0]], &mut s, named);
-    assert_eq!((s.draws, s.jerk), (1, 0.0));
-    let mut s = choreo::lm::sampling::RECOMMENDED;
+    assert_eq!(prices(named_pace), (4, 0.0, 1.0));
     let named_jerk = choreo::lm::model::Named {
         jerk: true,
         ..Default::default()
     };
-    m6.fill_defaults([&kinds[0]], &mut s, named_jerk);
-    assert_eq!((s.draws, s.jerk), (4, 0.0));
+    assert_eq!(prices(named_jerk), (4, 5.0, 0.0));
     let mut labels = Labels::new();
     labels.insert("style".into(), "furious".into());
     let dir2 = export(&net, &v);

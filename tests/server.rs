@@ -949,65 +949,54 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         generate_refused(h, far, &format!("sampling.{field}")).await;
     }
 
-    // pace, the hold on the continued motion's pace among the candidate
-    // frames: the same frames over both transports, the answer says it;
-    // with one candidate (nothing to choose among) or past 100 a 400
-    // naming it.
-    let mut g = greq.clone();
-    let gs = g.sampling.as_mut().unwrap();
-    (gs.draws, gs.pace) = (3, 8.0);
-    let g = client.generate(g).await.unwrap().into_inner();
-    assert_eq!(g.sampling.as_ref().unwrap().pace, 8.0);
-    let req = json!({
-        "labels": {"genre": "BR"}, "frames": 24,
-        "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
-        "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
-        "sampling": {"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "draws": 3, "pace": 8.0}
-    });
-    let (status, r) =
-        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
-            .await
-            .unwrap();
-    assert_eq!(status, 200, "pace: {r}");
-    assert_eq!(r["sampling"]["pace"], json!(8.0), "{}", r["sampling"]);
-    let rr = flat_rotations(&r["output"]["rotations"]);
-    let gr = g.output.unwrap().rotations;
-    assert!(gr.iter().zip(&rr).all(|(a, b)| (a - b).abs() < 1e-12));
-    for bad in [
-        json!({"draws": 1, "pace": 3.0}),
-        json!({"draws": 2, "pace": 101.0}),
-    ] {
-        generate_refused(h, json!({"frames": 4, "sampling": bad}), "sampling.pace").await;
-    }
-
-    // jerk, the price on each candidate frame's jerk: the same frames over
-    // both transports, the answer says it; with one candidate or past 100
-    // a 400 naming it.
-    let mut g = greq.clone();
-    let gs = g.sampling.as_mut().unwrap();
-    (gs.draws, gs.jerk) = (3, 2.0);
-    let g = client.generate(g).await.unwrap().into_inner();
-    assert_eq!(g.sampling.as_ref().unwrap().jerk, 2.0);
-    let req = json!({
-        "labels": {"genre": "BR"}, "frames": 24,
-        "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
-        "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
-        "sampling": {"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "draws": 3, "jerk": 2.0}
-    });
-    let (status, r) =
-        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
-            .await
-            .unwrap();
-    assert_eq!(status, 200, "jerk: {r}");
-    assert_eq!(r["sampling"]["jerk"], json!(2.0), "{}", r["sampling"]);
-    let rr = flat_rotations(&r["output"]["rotations"]);
-    let gr = g.output.unwrap().rotations;
-    assert!(gr.iter().zip(&rr).all(|(a, b)| (a - b).abs() < 1e-12));
-    for bad in [
-        json!({"draws": 1, "jerk": 3.0}),
-        json!({"draws": 2, "jerk": 101.0}),
-    ] {
-        generate_refused(h, json!({"frames": 4, "sampling": bad}), "sampling.jerk").await;
+    // pace (the hold on the continued motion's pace) and jerk (the price
+    // on each candidate's jerk), which choose among the candidate frames:
+    // the same frames over both transports, the answer says it; with one
+    // candidate (nothing to choose among) or past 100 a 400 naming it.
+    for (field, value) in [("pace", 8.0), ("jerk", 2.0)] {
+        let mut g = greq.clone();
+        let gs = g.sampling.as_mut().unwrap();
+        gs.draws = 3;
+        *(if field == "pace" {
+            &mut gs.pace
+        } else {
+            &mut gs.jerk
+        }) = value;
+        let g = client.generate(g).await.unwrap().into_inner();
+        let echo = g.sampling.as_ref().unwrap();
+        assert_eq!(
+            if field == "pace" {
+                echo.pace
+            } else {
+                echo.jerk
+            },
+            value
+        );
+        let mut sampling =
+            json!({"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "draws": 3});
+        sampling[field] = json!(value);
+        let req = json!({
+            "labels": {"genre": "BR"}, "frames": 24,
+            "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
+            "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
+            "sampling": sampling
+        });
+        let (status, r) =
+            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
+                .await
+                .unwrap();
+        assert_eq!(status, 200, "{field}: {r}");
+        assert_eq!(r["sampling"][field], json!(value), "{}", r["sampling"]);
+        let rr = flat_rotations(&r["output"]["rotations"]);
+        let gr = g.output.unwrap().rotations;
+        assert!(gr.iter().zip(&rr).all(|(a, b)| (a - b).abs() < 1e-12));
+        for bad in [
+            json!({"draws": 1, field: 3.0}),
+            json!({"draws": 2, field: 101.0}),
+        ] {
+            let want = format!("sampling.{field}");
+            generate_refused(h, json!({"frames": 4, "sampling": bad}), &want).await;
+        }
     }
 
     // A request naming no max_jump, top_p or posture gets the model's
@@ -1016,8 +1005,8 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     // content, the smaller cap for both and the first kind's posture, else
     // the recommended 48; top_p 1 and posture 2 for AIST++'s genre, else
     // 0.95 and none), and the answer says which sampling ran.
-    // Bandai's style and content also draw 4 candidate frames a frame
-    // (draws) with a price on jerk 1, AIST++'s genre 1.
+    // Every kind also draws 4 candidate frames a frame (draws) with a
+    // price on jerk 1, unless the request names its draws.
     for (labels, sampling, (want, top_p, posture, draws)) in [
         (json!({"style": "angry"}), json!(null), (12, 1.0, 1.5, 4)),
         (json!({"content": "walk"}), json!(null), (24, 0.95, 2.0, 4)),
@@ -1026,7 +1015,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             json!(null),
             (12, 1.0, 2.0, 4),
         ),
-        (json!({"genre": "BR"}), json!(null), (48, 1.0, 2.0, 1)),
+        (json!({"genre": "BR"}), json!(null), (48, 1.0, 2.0, 4)),
         (
             json!({"style": "angry", "genre": "BR"}),
             json!({"seed": 3}),
@@ -1045,12 +1034,12 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         (
             json!({"genre": "BR"}),
             json!({"top_p": 0.9}),
-            (48, 0.9, 2.0, 1),
+            (48, 0.9, 2.0, 4),
         ),
         (
             json!({"genre": "BR"}),
             json!({"posture": 0}),
-            (48, 1.0, 0.0, 1),
+            (48, 1.0, 0.0, 4),
         ),
     ] {
         let mut req = json!({"labels": labels, "frames": 4});
@@ -1086,7 +1075,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     for (kind, value, want, draws) in [
         ("style", "angry", (12, 1.0, 1.5), 4),
         ("content", "walk", (24, 0.95, 2.0), 4),
-        ("genre", "BR", (48, 1.0, 2.0), 1),
+        ("genre", "BR", (48, 1.0, 2.0), 4),
     ] {
         let g = client
             .generate(pb::GenerateRequest {

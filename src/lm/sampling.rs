@@ -173,39 +173,25 @@ impl Sampling {
                 format!("{} (want 1 to {MAX_DRAWS}; 1 = plain drawing)", self.draws),
             ));
         }
-        if !(self.pace.is_finite() && (0.0..=100.0).contains(&self.pace)) {
-            return Err(LmError::invalid(
-                "request",
-                "sampling.pace",
-                format!("{} (want 0 to 100; 0 = off)", self.pace),
-            ));
-        }
-        if self.pace > 0.0 && self.draws < 2 && self.temperature > 0.0 {
-            return Err(LmError::invalid(
-                "request",
-                "sampling.pace",
-                format!(
-                    "{} needs candidates to choose among (sampling.draws 2 or more; it is {})",
-                    self.pace, self.draws
-                ),
-            ));
-        }
-        if !(self.jerk.is_finite() && (0.0..=100.0).contains(&self.jerk)) {
-            return Err(LmError::invalid(
-                "request",
-                "sampling.jerk",
-                format!("{} (want 0 to 100; 0 = off)", self.jerk),
-            ));
-        }
-        if self.jerk > 0.0 && self.draws < 2 && self.temperature > 0.0 {
-            return Err(LmError::invalid(
-                "request",
-                "sampling.jerk",
-                format!(
-                    "{} needs candidates to choose among (sampling.draws 2 or more; it is {})",
-                    self.jerk, self.draws
-                ),
-            ));
+        // The candidates' prices: the pace hold and the jerk price.
+        for (field, v) in [("sampling.pace", self.pace), ("sampling.jerk", self.jerk)] {
+            if !(v.is_finite() && (0.0..=100.0).contains(&v)) {
+                return Err(LmError::invalid(
+                    "request",
+                    field,
+                    format!("{v} (want 0 to 100; 0 = off)"),
+                ));
+            }
+            if v > 0.0 && self.draws < 2 && self.temperature > 0.0 {
+                return Err(LmError::invalid(
+                    "request",
+                    field,
+                    format!(
+                        "{v} needs candidates to choose among (sampling.draws 2 or more; it is {})",
+                        self.draws
+                    ),
+                ));
+            }
         }
         if self.max_jump > 180 {
             return Err(LmError::invalid(
