@@ -78,6 +78,35 @@ fn try_http(
 }
 
 /// `[frames][joints][3]` JSON rotations as gRPC's flat array.
+/// The genre BR request with the AIST++ prompt (pelvis and right arm
+/// forced) and `sampling`, over REST: its rotations equal `grpc`'s (the
+/// same request over gRPC); the answer.
+async fn prompted_rest_matches(
+    h: SocketAddr,
+    b64: &str,
+    sampling: Value,
+    grpc: &[f64],
+    what: &str,
+) -> Value {
+    let req = json!({
+        "labels": {"genre": "BR"}, "frames": 24,
+        "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
+        "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
+        "sampling": sampling
+    });
+    let (status, r) =
+        tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
+            .await
+            .unwrap();
+    assert_eq!(status, 200, "{what}: {r}");
+    let rr = flat_rotations(&r["output"]["rotations"]);
+    assert!(
+        grpc.iter().zip(&rr).all(|(a, b)| (a - b).abs() < 1e-12),
+        "{what}"
+    );
+    r
+}
+
 fn flat_rotations(v: &Value) -> Vec<f64> {
     v.as_array()
         .unwrap()
@@ -921,23 +950,8 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         );
         let mut sampling = json!({"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7});
         sampling[field] = as_json(ok);
-        let req = json!({
-            "labels": {"genre": "BR"}, "frames": 24,
-            "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
-            "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
-            "sampling": sampling
-        });
-        let (status, r) =
-            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
-                .await
-                .unwrap();
-        assert_eq!(status, 200, "{field}: {r}");
-        let rr = flat_rotations(&r["output"]["rotations"]);
         let gr = g.output.unwrap().rotations;
-        assert!(
-            gr.iter().zip(&rr).all(|(a, b)| (a - b).abs() < 1e-12),
-            "{field}"
-        );
+        let r = prompted_rest_matches(h, &b64, sampling, &gr, field).await;
         assert_ne!(gr, m.rotations, "{field} {ok} changes the draw");
         assert_eq!(
             r["sampling"][field],
@@ -975,21 +989,9 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         let mut sampling =
             json!({"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "draws": 3});
         sampling[field] = json!(value);
-        let req = json!({
-            "labels": {"genre": "BR"}, "frames": 24,
-            "prompt": {"file": {"name": "gBR_sBM_cAll_d04_mBR2_ch08.pkl", "content_base64": b64}},
-            "prompt_joints": ["pelvis", "right_shoulder", "right_elbow"],
-            "sampling": sampling
-        });
-        let (status, r) =
-            tokio::task::spawn_blocking(move || http(h, "POST", "/v1/generate", Some(&req)))
-                .await
-                .unwrap();
-        assert_eq!(status, 200, "{field}: {r}");
-        assert_eq!(r["sampling"][field], json!(value), "{}", r["sampling"]);
-        let rr = flat_rotations(&r["output"]["rotations"]);
         let gr = g.output.unwrap().rotations;
-        assert!(gr.iter().zip(&rr).all(|(a, b)| (a - b).abs() < 1e-12));
+        let r = prompted_rest_matches(h, &b64, sampling, &gr, field).await;
+        assert_eq!(r["sampling"][field], json!(value), "{}", r["sampling"]);
         for bad in [
             json!({"draws": 1, field: 3.0}),
             json!({"draws": 2, field: 101.0}),
