@@ -23,6 +23,7 @@ pub mod embed;
 pub mod engine;
 pub mod exemplars;
 pub mod frame;
+mod frame_draw;
 pub mod frame_generator;
 pub mod frame_runtime;
 pub mod generate;
