@@ -1622,3 +1622,77 @@ fn head_slots_are_added_to_a_model_without_heads() {
         .unwrap();
     assert!(format!("{e:#}").contains("--classify"), "{e:#}");
 }
+
+#[test]
+fn an_older_local_graph_draws_candidates_one_at_a_time_until_upgraded() {
+    use choreo::lm::frame_runtime::FrameSession;
+    use prost::Message;
+    use tract_onnx::pb::{tensor_shape_proto::dimension::Value as Dim, type_proto::Value};
+    let v = vocab();
+    let c = corpus(&v);
+    let net = trained(&v, &c, 20);
+    let dir = export(&net, &v);
+    assert!(FrameSession::load(dir.path()).unwrap().batches().unwrap());
+    // The local graph as exports before the batch dimension wrote it:
+    // every batch dimension fixed at 1 (the manifest's hash follows).
+    let path = dir.path().join("local.onnx");
+    let mut m = tract_onnx::pb::ModelProto::decode(&*std::fs::read(&path).unwrap()).unwrap();
+    let g = m.graph.as_mut().unwrap();
+    let mut fixed = 0;
+    for vi in g.input.iter_mut().chain(g.output.iter_mut()) {
+        if let Some(Value::TensorType(t)) = vi.r#type.as_mut().and_then(|t| t.value.as_mut()) {
+            for d in t.shape.as_mut().unwrap().dim.iter_mut() {
+                if matches!(&d.value, Some(Dim::DimParam(p)) if p == "batch") {
+                    d.value = Some(Dim::DimValue(1));
+                    fixed += 1;
+                }
+            }
+        }
+    }
+    assert!(fixed >= 6, "{fixed} batch dimensions");
+    let bytes = m.encode_to_vec();
+    let mf = dir.path().join("manifest.json");
+    let text = std::fs::read_to_string(&mf).unwrap();
+    let j: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let old = j["local_sha256"].as_str().unwrap().to_string();
+    let new = choreo::lm::manifest::sha256_hex(&bytes);
+    std::fs::write(&path, &bytes).unwrap();
+    std::fs::write(&mf, text.replace(&old, &new)).unwrap();
+    assert!(!FrameSession::load(dir.path()).unwrap().batches().unwrap());
+
+    // It loads and draws four candidates a frame, one after another.
+    let fl = v.frame_len();
+    let sampling = Sampling {
+        temperature: 1.0,
+        top_p: 1.0,
+        draws: 4,
+        seed: 3,
+        ..Sampling::default()
+    };
+    let mut labels = Labels::new();
+    labels.insert("style".into(), "happy".into());
+    let run = || -> Vec<u32> {
+        let model = MotionModel::load(dir.path()).unwrap();
+        let mut g = model.generator(&labels, &[], sampling.clone()).unwrap();
+        (0..30)
+            .flat_map(|_| g.next_frame(&vec![None; fl]).unwrap())
+            .collect()
+    };
+    let before = run();
+    assert_eq!(before.len(), 30 * fl);
+    assert_eq!(before, run(), "one seed, one clip");
+
+    // `choreo-train upgrade-frame`: the same weights, now batched; the
+    // logits match the old graph's, one at a time and side by side.
+    let (one, side) = frame_export::upgrade_local(dir.path()).unwrap().unwrap();
+    eprintln!("upgraded: {one:.1e} one at a time, {side:.1e} batched");
+    assert!(one < 1e-6 && side < 1e-4, "{one} {side}");
+    assert!(FrameSession::load(dir.path()).unwrap().batches().unwrap());
+    assert!(frame_export::upgrade_local(dir.path()).unwrap().is_none());
+    let after = run();
+    assert_eq!(after.len(), 30 * fl);
+    assert_eq!(after, run(), "one seed, one clip");
+    assert!(after
+        .chunks(fl)
+        .all(|f| f[..fl - 1].iter().all(|&t| (t as usize) < v.bins)));
+}

@@ -126,6 +126,26 @@ fn tract_and_ort_agree_on_the_frame_model() {
     );
     assert!(scale > 0.01);
     assert!(worst < 1e-4, "{worst}");
+    // Candidate frames side by side (the local graph's batch dimension):
+    // both runtimes, against each other and against one at a time.
+    assert!(t.batches().unwrap() && o.batches().unwrap());
+    let h = t.state_after(&cond, &fs[..2]).unwrap();
+    let ctx = (Some(fs[1].as_slice()), Some(fs[0].as_slice()));
+    let cands = &fs[2..6];
+    let one = t.local_logits(&h, ctx, cands, false).unwrap();
+    let side_t = t.local_logits(&h, ctx, cands, true).unwrap();
+    let side_o = o.local_logits(&h, ctx, cands, true).unwrap();
+    let flat = |x: &[(Vec<f32>, Vec<f32>)]| -> Vec<f32> {
+        x.iter()
+            .flat_map(|(r, a)| r.iter().chain(a).copied())
+            .collect()
+    };
+    let (one, side_t, side_o) = (flat(&one), flat(&side_t), flat(&side_o));
+    let c = t.config();
+    assert_eq!(one.len(), 4 * c.slots * (c.bins + c.rel_classes()));
+    for (x, (y, z)) in one.iter().zip(side_t.iter().zip(&side_o)) {
+        assert!((x - y).abs() < 1e-4 && (x - z).abs() < 1e-4, "{x} {y} {z}");
+    }
     let ca = t.classify(&fs.concat()).unwrap();
     let cb = o.classify(&fs.concat()).unwrap();
     for (x, y) in ca.iter().flatten().zip(cb.iter().flatten()) {

@@ -97,6 +97,12 @@ pub enum BenchCmd {
         duet: Option<PathBuf>,
         #[arg(long, value_delimiter = ',', default_value = "Pelvis,Right_Wrist")]
         duet_joints: Vec<String>,
+        /// Also time what a request with these labels and no sampling gets
+        /// (the model's defaults for the label kinds: candidates, posture
+        /// pull, jerk price), streaming from no seed (KIND=VALUE,
+        /// repeatable; e.g. `--label style=happy`).
+        #[arg(long)]
+        label: Vec<String>,
         /// Print one JSON object on one line.
         #[arg(long)]
         json: bool,
@@ -173,10 +179,18 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             ort_lib,
             duet,
             duet_joints,
+            label,
             json,
         } => {
             let engine = choreo::lm::engine::Engine::new(runtime, ort_lib.as_deref())?;
             let duet = duet.as_deref().map(|f| (f, duet_joints.as_slice()));
+            let mut labels = choreo::motion::Labels::new();
+            for l in &label {
+                let (k, v) = l
+                    .split_once('=')
+                    .ok_or_else(|| anyhow::anyhow!("--label: {l:?} is not KIND=VALUE"))?;
+                labels.insert(k.to_string(), v.to_string());
+            }
             super::bench_model::run(
                 &model,
                 &engine,
@@ -184,6 +198,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
                 frames,
                 dump.as_deref(),
                 duet,
+                &labels,
                 json,
             )
         }

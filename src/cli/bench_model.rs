@@ -16,6 +16,7 @@ pub fn run(
     frames: usize,
     dump: Option<&Path>,
     duet: Option<(&Path, &[String])>,
+    labels: &choreo::motion::Labels,
     json: bool,
 ) -> Result<()> {
     use choreo::lm::model::MotionModel;
@@ -123,6 +124,30 @@ pub fn run(
             "real_time_factor": frames as f64 / v.fps / total4,
         });
     }
+    // What a request with the labels and no sampling gets: the service's
+    // recommended sampling with the model's defaults for the label kinds.
+    let mut labelled = serde_json::Value::Null;
+    if !labels.is_empty() {
+        let mut s = Sampling::recommended(1);
+        model.fill_defaults(labels.keys(), &mut s, Default::default());
+        let mut g = model.generator(labels, &[], s.clone())?;
+        let mut lat = Vec::with_capacity(frames);
+        let t = Instant::now();
+        for _ in 0..frames {
+            let t1 = Instant::now();
+            g.next_frame(&free)?;
+            lat.push(t1.elapsed().as_secs_f64() * 1e3);
+        }
+        let total = t.elapsed().as_secs_f64();
+        lat.sort_by(f64::total_cmp);
+        labelled = serde_json::json!({
+            "labels": labels,
+            "sampling": choreo::eval::generate::sampling_name(&s),
+            "frame_ms_p50": percentile(&lat, 0.5),
+            "frame_ms_p99": percentile(&lat, 0.99),
+            "real_time_factor": frames as f64 / v.fps / total,
+        });
+    }
     // A duet: a real motion as the performer, one frame in, one out.
     let mut duet_json = serde_json::Value::Null;
     if let Some((file, joints)) = duet {
@@ -174,6 +199,7 @@ pub fn run(
         "frame_ms_max": q(1.0),
         "real_time_factor": frames as f64 / v.fps / total,
         "draws_4": draws4,
+        "labelled_default": labelled,
         "allocations_per_frame": allocs,
         "allocations_per_token": allocs / v.frame_len() as f64,
     });

@@ -76,7 +76,7 @@ impl Outputs {
     }
 }
 
-/// Key/value caches of fixed capacity, `[1, heads, cap, d_head]` per layer,
+/// Key/value caches of fixed capacity, `[batch, heads, cap, d_head]` per layer,
 /// and how many rows hold positions. Passed to a step after its other
 /// inputs, as (k, v) per layer. A clone shares the tensors until either
 /// side writes (copy on write), so forking a generation is cheap.
@@ -84,6 +84,8 @@ impl Outputs {
 pub struct Cache {
     k: Vec<Arc<Tensor>>,
     v: Vec<Arc<Tensor>>,
+    /// Rows side by side (a batched graph's batch; else 1).
+    batch: usize,
     heads: usize,
     cap: usize,
     dh: usize,
@@ -95,10 +97,17 @@ pub struct Cache {
 
 impl Cache {
     pub fn new(layers: usize, heads: usize, cap: usize, dh: usize) -> Cache {
-        let z = || Arc::new(Tensor::zero::<f32>(&[1, heads, cap, dh]).expect("cache tensor"));
+        Cache::batched(1, layers, heads, cap, dh)
+    }
+
+    /// `batch` caches side by side (`[batch, heads, cap, d_head]` per
+    /// layer) for a batched graph; the positions advance together.
+    pub fn batched(batch: usize, layers: usize, heads: usize, cap: usize, dh: usize) -> Cache {
+        let z = || Arc::new(Tensor::zero::<f32>(&[batch, heads, cap, dh]).expect("cache tensor"));
         Cache {
             k: (0..layers).map(|_| z()).collect(),
             v: (0..layers).map(|_| z()).collect(),
+            batch,
             heads,
             cap,
             dh,
@@ -134,7 +143,7 @@ impl Cache {
 
     #[cfg_attr(not(feature = "onnxruntime"), allow(dead_code))]
     fn shape(&self) -> [usize; 4] {
-        [1, self.heads, self.cap, self.dh]
+        [self.batch, self.heads, self.cap, self.dh]
     }
 
     /// The caches' tensors in input order (k, v per layer).
@@ -142,7 +151,7 @@ impl Cache {
         self.k.iter().zip(&self.v).flat_map(|(k, v)| [k, v])
     }
 
-    /// Writes the new position's keys and values (`[1, heads, 1, dh]`
+    /// Writes the new position's keys and values (`[batch, heads, 1, dh]`
     /// each, alternating k, v per layer: a step's last outputs) at row
     /// `len`.
     pub fn push(&mut self, out: &Outputs, first: usize) -> Result<(), LmError> {
@@ -158,7 +167,14 @@ impl Cache {
                 let d = view
                     .as_slice_mut()
                     .ok_or_else(|| rt("cache tensor is not contiguous"))?;
-                for h in 0..self.heads {
+                if src.len() != self.batch * self.heads * dh {
+                    return Err(rt(format!(
+                        "a step gave {} key/value numbers, the cache wants {}",
+                        src.len(),
+                        self.batch * self.heads * dh
+                    )));
+                }
+                for h in 0..self.batch * self.heads {
                     d[(h * cap + p) * dh..(h * cap + p + 1) * dh]
                         .copy_from_slice(&src[h * dh..(h + 1) * dh]);
                 }
@@ -173,7 +189,14 @@ impl Cache {
 /// A loaded graph, shared by requests.
 pub trait Graph: Send + Sync {
     /// A fresh run state (one per generator or request; reused per step).
+    /// A graph with a batch symbol ([`GraphSpec::batch`]) runs it at 1.
     fn spawn(&self) -> Result<Box<dyn GraphState>, LmError>;
+
+    /// A run state for `n` rows side by side, if the graph was exported
+    /// with the batch symbol [`GraphSpec::batch`] names; None otherwise.
+    fn spawn_batch(&self, _n: usize) -> Result<Option<Box<dyn GraphState>>, LmError> {
+        Ok(None)
+    }
 }
 
 /// A graph's run state.
@@ -204,6 +227,32 @@ pub struct GraphSpec<'a> {
     /// Where the graph came from, for errors.
     pub file: &'a str,
     pub f32_shapes: &'a [Vec<Dim>],
+    /// The symbol of a batch dimension the graph may have (its first
+    /// input's first dimension): a graph exported with it runs at any
+    /// batch ([`Graph::spawn_batch`]); one exported at a fixed 1 still loads.
+    pub batch: Option<&'a str>,
+}
+
+/// Whether the graph's first input has the batch symbol `sym` as its first
+/// dimension.
+fn has_batch(bytes: &[u8], sym: &str) -> bool {
+    use prost::Message;
+    use tract_onnx::pb::{tensor_shape_proto::dimension::Value, type_proto};
+    let Ok(m) = tract_onnx::pb::ModelProto::decode(bytes) else {
+        return false;
+    };
+    let first = m
+        .graph
+        .as_ref()
+        .and_then(|g| g.input.first())
+        .and_then(|i| i.r#type.as_ref())
+        .and_then(|t| match &t.value {
+            Some(type_proto::Value::TensorType(t)) => t.shape.as_ref(),
+            _ => None,
+        })
+        .and_then(|s| s.dim.first())
+        .and_then(|d| d.value.as_ref());
+    matches!(first, Some(Value::DimParam(p)) if p == sym)
 }
 
 /// What loads graphs: the runtime and, for ort, its environment.
@@ -271,6 +320,20 @@ impl Engine {
                     .map_err(|e| bad(e.to_string()))?;
                 check_names(&model, spec).map_err(|e| bad(e.to_string()))?;
                 let model = pin_shapes(model, spec.f32_shapes).map_err(|e| bad(e.to_string()))?;
+                if let Some(sym) = spec.batch.filter(|s| has_batch(bytes, s)) {
+                    let typed = model
+                        .into_typed()
+                        .and_then(|m| m.into_decluttered())
+                        .map_err(|e| bad(e.to_string()))?;
+                    let sym = typed.sym(sym);
+                    let g = TractBatched {
+                        typed,
+                        sym,
+                        plans: Default::default(),
+                    };
+                    g.plan(1).map_err(|e| bad(e.to_string()))?;
+                    return Ok(Arc::new(g));
+                }
                 let plan = model
                     .into_optimized()
                     .and_then(|m| m.into_runnable())
@@ -281,7 +344,8 @@ impl Engine {
                 #[cfg(feature = "onnxruntime")]
                 {
                     let env = self.ort.clone().expect("ort engine has an environment");
-                    Ok(Arc::new(ort_rt::OrtGraph::load(env, bytes, spec)?))
+                    let batched = spec.batch.is_some_and(|s| has_batch(bytes, s));
+                    Ok(Arc::new(ort_rt::OrtGraph::load(env, bytes, spec, batched)?))
                 }
                 #[cfg(not(feature = "onnxruntime"))]
                 unreachable!("an ort engine is only built with the onnxruntime feature")
@@ -349,6 +413,47 @@ struct TractGraph(Arc<TypedRunnableModel>);
 impl Graph for TractGraph {
     fn spawn(&self) -> Result<Box<dyn GraphState>, LmError> {
         Ok(Box::new(TractState(self.0.spawn().map_err(rt)?)))
+    }
+}
+
+/// A tract graph with a batch symbol: one plan per batch size, each
+/// optimised for it when first asked for (a few milliseconds).
+struct TractBatched {
+    typed: TypedModel,
+    sym: Symbol,
+    plans: std::sync::Mutex<std::collections::HashMap<usize, Arc<TypedRunnableModel>>>,
+}
+
+impl TractBatched {
+    fn plan(&self, n: usize) -> TractResult<Arc<TypedRunnableModel>> {
+        let mut plans = self
+            .plans
+            .lock()
+            .map_err(|_| anyhow::anyhow!("plan cache poisoned"))?;
+        if let Some(p) = plans.get(&n) {
+            return Ok(p.clone());
+        }
+        let subs = std::iter::once((self.sym.clone(), TDim::Val(n as i64))).collect();
+        let p = self
+            .typed
+            .set_symbols(&subs)?
+            .into_optimized()?
+            .into_runnable()?;
+        plans.insert(n, p.clone());
+        Ok(p)
+    }
+}
+
+impl Graph for TractBatched {
+    fn spawn(&self) -> Result<Box<dyn GraphState>, LmError> {
+        Ok(Box::new(TractState(
+            self.plan(1).map_err(rt)?.spawn().map_err(rt)?,
+        )))
+    }
+
+    fn spawn_batch(&self, n: usize) -> Result<Option<Box<dyn GraphState>>, LmError> {
+        let st = self.plan(n).map_err(rt)?.spawn().map_err(rt)?;
+        Ok(Some(Box::new(TractState(st))))
     }
 }
 
@@ -452,6 +557,8 @@ mod ort_rt {
         env: Arc<OrtEnv>,
         bytes: Arc<[u8]>,
         pool: Arc<Mutex<Vec<Session>>>,
+        /// Exported with a batch symbol: a session runs any batch.
+        batched: bool,
     }
 
     fn session(env: &OrtEnv, bytes: &[u8]) -> Result<Session, LmError> {
@@ -466,7 +573,12 @@ mod ort_rt {
     }
 
     impl OrtGraph {
-        pub fn load(env: Arc<OrtEnv>, bytes: &[u8], spec: &GraphSpec) -> Result<OrtGraph, LmError> {
+        pub fn load(
+            env: Arc<OrtEnv>,
+            bytes: &[u8],
+            spec: &GraphSpec,
+            batched: bool,
+        ) -> Result<OrtGraph, LmError> {
             let s = session(&env, bytes)
                 .map_err(|e| LmError::invalid(spec.file, "graph", e.to_string()))?;
             let got: Vec<String> = s.inputs().iter().map(|o| o.name().to_string()).collect();
@@ -486,6 +598,7 @@ mod ort_rt {
                 env,
                 bytes: bytes.into(),
                 pool: Arc::new(Mutex::new(vec![s])),
+                batched,
             })
         }
     }
@@ -501,6 +614,14 @@ mod ort_rt {
                 session: Some(s),
                 pool: self.pool.clone(),
             }))
+        }
+
+        fn spawn_batch(&self, _n: usize) -> Result<Option<Box<dyn GraphState>>, LmError> {
+            if self.batched {
+                self.spawn().map(Some)
+            } else {
+                Ok(None)
+            }
         }
     }
 

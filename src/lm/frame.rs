@@ -286,6 +286,11 @@ pub struct KindSampling {
 pub const FRAME_KIND: &str = "motion-frame-lm";
 pub const GLOBAL_ONNX: &str = "global.onnx";
 pub const LOCAL_ONNX: &str = "local.onnx";
+/// The local graph's batch dimension, a symbol: the
+/// candidate frames of `sampling.draws` decoded side by side, one run a
+/// slot. Graphs exported before have a batch of 1 (the candidates then
+/// run one after another).
+pub const LOCAL_BATCH: &str = "batch";
 
 /// Input names of the global step graph, in order.
 pub fn global_inputs(cfg: &FrameConfig) -> Vec<String> {

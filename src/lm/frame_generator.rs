@@ -34,6 +34,10 @@ pub struct FrameGenerator {
     session: Arc<FrameSession>,
     tracks: Vec<Track>,
     lstate: Step,
+    /// The local decoder's run state for `sampling.draws` candidates side
+    /// by side (one run a slot for all of them); None with one candidate
+    /// or a local graph exported without a batch dimension.
+    lbatch: Option<Step>,
     /// Frames in the global cache (after the conditioning row).
     window: Vec<Vec<u32>>,
     /// The frame before the window's first one, if any (its change codes).
@@ -129,10 +133,12 @@ impl FrameGenerator {
         } else {
             None
         };
+        let lbatch = batch_state(&session, &sampling)?;
         let mut g = FrameGenerator {
             session,
             tracks,
             lstate,
+            lbatch,
             window: frames[frames.len() - keep..].to_vec(),
             before: (frames.len() > keep).then(|| frames[frames.len() - keep - 1].clone()),
             h: Vec::new(),
@@ -168,6 +174,7 @@ impl FrameGenerator {
             session: self.session.clone(),
             tracks,
             lstate: self.session.states()?.1,
+            lbatch: batch_state(&self.session, &self.sampling)?,
             window: self.window.clone(),
             before: self.before.clone(),
             h: self.h.clone(),
@@ -272,16 +279,27 @@ impl FrameGenerator {
         } else {
             self.sampling.draws.max(1)
         };
-        let mut cands = Vec::with_capacity(n as usize);
-        for _ in 0..n {
-            cands.push(self.draw_frame(
+        let cands = if n > 1 && self.lbatch.is_some() {
+            self.draw_frames(
                 &session,
                 forced,
                 (&vel, &prev, p1.as_deref()),
                 pull.as_ref(),
-                n > 1,
-            )?);
-        }
+                n as usize,
+            )?
+        } else {
+            let mut cands = Vec::with_capacity(n as usize);
+            for _ in 0..n {
+                cands.push(self.draw_frame(
+                    &session,
+                    forced,
+                    (&vel, &prev, p1.as_deref()),
+                    pull.as_ref(),
+                    n > 1,
+                )?);
+            }
+            cands
+        };
         // The pace hold (it has a seed, so a previous frame) prices each
         // candidate, and records the kept one's pace.
         let vocab = &session.manifest.vocabulary;
@@ -392,46 +410,114 @@ impl FrameGenerator {
         let mut local = session.new_local_cache();
         let mut frame = Vec::with_capacity(c.slots + 1);
         let mut inp = c.start();
-        let (mut surprise, mut expected) = (0.0, 0.0);
+        let mut scores = (0.0, 0.0);
         for s in 0..c.slots {
             session.local_step(&mut self.lstate, &mut local, &self.h, inp, vel[s], prev[s])?;
             let out = &self.lstate.out;
-            let tok = match forced[s] {
-                Some(t) if (t as usize) < c.bins => t,
-                Some(t) => {
-                    return Err(LmError::invalid(
-                        "request",
-                        format!("prompt slot {s}"),
-                        format!("token {t} is not a value token"),
-                    ))
-                }
-                None => {
-                    let t = super::frame_draw::draw(
-                        &self.sampling,
-                        &mut self.rng,
-                        c,
-                        (out.data(0), out.data(1)),
-                        pull.map(|p| p.slot(s, &frame)).as_deref(),
-                        p1.map(|p| p[s]),
-                        c.wraps(s),
-                    );
-                    if score {
-                        let (nll, h) = super::typical::surprise_of(
-                            c,
-                            (out.data(0), out.data(1)),
-                            p1.map(|p| p[s]),
-                            t,
-                        );
-                        surprise += nll;
-                        expected += h;
-                    }
-                    t
-                }
-            };
+            let tok = slot_token(
+                (&self.sampling, &mut self.rng, c),
+                (s, forced[s], p1),
+                (out.data(0), out.data(1)),
+                pull,
+                &frame,
+                score.then_some(&mut scores),
+            )?;
             inp = c.change(p1.map(|p| p[s]), tok);
             frame.push(tok);
         }
-        Ok((frame, surprise, expected))
+        Ok((frame, scores.0, scores.1))
+    }
+
+    /// `n` candidate frames drawn as [`Self::draw_frame`] draws one, side
+    /// by side: one batched local run a slot for all of them (the global
+    /// state, the slot and its context are theirs in common), each scored.
+    fn draw_frames(
+        &mut self,
+        session: &FrameSession,
+        forced: &[Option<u32>],
+        (vel, prev, p1): (&[u32], &[u32], Option<&[u32]>),
+        pull: Option<&super::posture::FramePull<'_>>,
+        n: usize,
+    ) -> Result<Vec<(Vec<u32>, f64, f64)>, LmError> {
+        let c = session.config();
+        let st = self.lbatch.as_mut().expect("checked by the caller");
+        let mut local = session.new_local_caches(n);
+        let mut frames = vec![Vec::with_capacity(c.slots + 1); n];
+        let mut scores = vec![(0.0, 0.0); n];
+        let mut inp = vec![c.start() as i64; n];
+        let (rc, bins) = (c.rel_classes(), c.bins);
+        for s in 0..c.slots {
+            session.local_step_batch(st, &mut local, &self.h, &inp, vel[s], prev[s])?;
+            for (b, frame) in frames.iter_mut().enumerate() {
+                let tok = slot_token(
+                    (&self.sampling, &mut self.rng, c),
+                    (s, forced[s], p1),
+                    (
+                        &st.out.data(0)[b * rc..(b + 1) * rc],
+                        &st.out.data(1)[b * bins..(b + 1) * bins],
+                    ),
+                    pull,
+                    frame,
+                    Some(&mut scores[b]),
+                )?;
+                inp[b] = c.change(p1.map(|p| p[s]), tok) as i64;
+                frame.push(tok);
+            }
+        }
+        Ok(frames
+            .into_iter()
+            .zip(scores)
+            .map(|(f, (a, b))| (f, a, b))
+            .collect())
+    }
+}
+
+/// The batched local run state for a generator drawing `sampling.draws`
+/// candidates, where there are several and the graph can batch them.
+fn batch_state(session: &FrameSession, sampling: &Sampling) -> Result<Option<Step>, LmError> {
+    if sampling.draws > 1 && sampling.temperature > 0.0 {
+        session.local_batch(sampling.draws as usize)
+    } else {
+        Ok(None)
+    }
+}
+
+/// Slot `s`'s token in a candidate frame (`frame`: its slots so far): the
+/// forced one (a joint prompt), else one drawn from the slot's change and
+/// absolute logits; with `score`, its surprise and the slot's entropy are
+/// added to it (forced slots count in neither).
+fn slot_token(
+    (sampling, rng, c): (&Sampling, &mut StdRng, &FrameConfig),
+    (s, forced, p1): (usize, Option<u32>, Option<&[u32]>),
+    logits: (&[f32], &[f32]),
+    pull: Option<&super::posture::FramePull<'_>>,
+    frame: &[u32],
+    score: Option<&mut (f64, f64)>,
+) -> Result<u32, LmError> {
+    match forced {
+        Some(t) if (t as usize) < c.bins => Ok(t),
+        Some(t) => Err(LmError::invalid(
+            "request",
+            format!("prompt slot {s}"),
+            format!("token {t} is not a value token"),
+        )),
+        None => {
+            let t = super::frame_draw::draw(
+                sampling,
+                rng,
+                c,
+                logits,
+                pull.map(|p| p.slot(s, frame)).as_deref(),
+                p1.map(|p| p[s]),
+                c.wraps(s),
+            );
+            if let Some((surprise, expected)) = score {
+                let (nll, h) = super::typical::surprise_of(c, logits, p1.map(|p| p[s]), t);
+                *surprise += nll;
+                *expected += h;
+            }
+            Ok(t)
+        }
     }
 }
 

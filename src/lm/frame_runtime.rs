@@ -49,6 +49,7 @@ impl FrameSession {
                 outputs: global_outputs(c).len(),
                 file: &name(&manifest.global_onnx),
                 f32_shapes: &[],
+                batch: None,
             },
         )?;
         let local = engine.load(
@@ -58,6 +59,7 @@ impl FrameSession {
                 outputs: local_outputs(c).len(),
                 file: &name(&manifest.local_onnx),
                 f32_shapes: &[],
+                batch: Some(super::frame::LOCAL_BATCH),
             },
         )?;
         let postures = super::posture::Postures::load(path, &manifest.vocabulary)?;
@@ -106,6 +108,34 @@ impl FrameSession {
             c.global_heads,
             c.max_frames + 1,
             c.d_global / c.global_heads,
+        )
+    }
+
+    /// A run state for `n` candidate frames decoded side by side, if the
+    /// local graph has a batch dimension (exported since it has one);
+    /// None for an older graph.
+    pub(super) fn local_batch(&self, n: usize) -> Result<Option<Step>, LmError> {
+        Ok(self.local.spawn_batch(n)?.map(|st| Step {
+            st,
+            out: Outputs::default(),
+        }))
+    }
+
+    /// Whether the local graph decodes candidate frames side by side (it
+    /// was exported with the batch dimension).
+    pub fn batches(&self) -> Result<bool, LmError> {
+        Ok(self.local_batch(2)?.is_some())
+    }
+
+    /// The local caches of `n` candidates side by side.
+    pub(super) fn new_local_caches(&self, n: usize) -> Cache {
+        let c = self.config();
+        Cache::batched(
+            n,
+            c.local_layers,
+            c.local_heads,
+            c.slots,
+            c.d_local / c.local_heads,
         )
     }
 
@@ -176,6 +206,39 @@ impl FrameSession {
             In::I64(&[1], &ids[1..2]),
             In::I64(&[1], &ids[2..3]),
             In::I64(&[1], &ids[3..4]),
+            In::F32(&[1, bias.len()], bias),
+        ];
+        st.st.run(&inputs, Some(cache), &mut st.out)?;
+        cache.push(&st.out, 2)
+    }
+
+    /// One local step for `inp.len()` candidates side by side at slot
+    /// `cache.len()`, all under the global state `ctx` with the slot's
+    /// `vel` and `prev`: candidate b's change logits are `st.out.data(0)`'s
+    /// b-th `rel_classes()` row, its absolute logits `data(1)`'s b-th
+    /// `bins` row.
+    pub(super) fn local_step_batch(
+        &self,
+        st: &mut Step,
+        cache: &mut Cache,
+        ctx: &[f32],
+        inp: &[i64],
+        vel: u32,
+        prev: u32,
+    ) -> Result<(), LmError> {
+        let c = self.config();
+        let n = inp.len();
+        let bias = cache.bias();
+        let ctxs: Vec<f32> = (0..n).flat_map(|_| ctx.iter().copied()).collect();
+        let vels = vec![vel as i64; n];
+        let prevs = vec![prev as i64; n];
+        let slot = [cache.len() as i64];
+        let inputs = [
+            In::F32(&[n, c.d_global], &ctxs),
+            In::I64(&[n], inp),
+            In::I64(&[n], &vels),
+            In::I64(&[n], &prevs),
+            In::I64(&[1], &slot),
             In::F32(&[1, bias.len()], bias),
         ];
         st.st.run(&inputs, Some(cache), &mut st.out)?;
@@ -278,6 +341,70 @@ impl FrameSession {
             h = self
                 .global_step(&mut gs, &mut cache, cond, Some((frame, p1)))?
                 .0;
+        }
+        Ok(out)
+    }
+
+    /// The global state after the conditioning row `cond` and `frames`
+    /// (value tokens from a sequence's start, at most the context).
+    pub fn state_after(&self, cond: &[f32], frames: &[Vec<u32>]) -> Result<Vec<f32>, LmError> {
+        let (mut gs, _) = self.states()?;
+        let mut cache = self.new_global_cache();
+        let (mut h, _) = self.global_step(&mut gs, &mut cache, cond, None)?;
+        for (f, frame) in frames.iter().enumerate() {
+            let p1 = (f > 0).then(|| frames[f - 1].as_slice());
+            h = self
+                .global_step(&mut gs, &mut cache, cond, Some((frame, p1)))?
+                .0;
+        }
+        Ok(h)
+    }
+
+    /// The local decoder's logits (per candidate, change and absolute
+    /// logits of every slot, row-major) for the candidate frames `cands`
+    /// (value tokens, `slots` each) after `p1` and `p2`, under the global
+    /// state `ctx`: side by side in one batched run a slot where the graph
+    /// has a batch dimension and `batched`, else one candidate at a time.
+    /// Errors if `batched` is asked of a graph without one. The two must
+    /// agree (the frame model's export test checks it).
+    pub fn local_logits(
+        &self,
+        ctx: &[f32],
+        (p1, p2): (Option<&[u32]>, Option<&[u32]>),
+        cands: &[Vec<u32>],
+        batched: bool,
+    ) -> Result<Vec<(Vec<f32>, Vec<f32>)>, LmError> {
+        let c = self.config();
+        let (vel, prev) = local_context(c, p1, p2);
+        let (rc, bins) = (c.rel_classes(), c.bins);
+        let mut out = vec![(Vec::new(), Vec::new()); cands.len()];
+        if batched {
+            let n = cands.len();
+            let mut st = self
+                .local_batch(n)?
+                .ok_or_else(|| LmError::Runtime("the local graph has no batch dimension".into()))?;
+            let mut cache = self.new_local_caches(n);
+            let mut inp = vec![c.start() as i64; n];
+            for s in 0..c.slots {
+                self.local_step_batch(&mut st, &mut cache, ctx, &inp, vel[s], prev[s])?;
+                for (b, (r, a)) in out.iter_mut().enumerate() {
+                    r.extend_from_slice(&st.out.data(0)[b * rc..(b + 1) * rc]);
+                    a.extend_from_slice(&st.out.data(1)[b * bins..(b + 1) * bins]);
+                    inp[b] = c.change(p1.map(|p| p[s]), cands[b][s]) as i64;
+                }
+            }
+        } else {
+            let (_, mut st) = self.states()?;
+            for (f, (r, a)) in cands.iter().zip(out.iter_mut()) {
+                let mut cache = self.new_local_cache();
+                let mut inp = c.start();
+                for s in 0..c.slots {
+                    self.local_step(&mut st, &mut cache, ctx, inp, vel[s], prev[s])?;
+                    r.extend_from_slice(st.out.data(0));
+                    a.extend_from_slice(st.out.data(1));
+                    inp = c.change(p1.map(|p| p[s]), f[s]);
+                }
+            }
         }
         Ok(out)
     }

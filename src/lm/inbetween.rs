@@ -320,6 +320,7 @@ impl Inbetweener {
                     Dim::N(cfg.window),
                     Dim::N(cfg.in_dim()),
                 ]],
+                batch: None,
             },
         )?;
         Ok(Inbetweener {

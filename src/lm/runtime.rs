@@ -124,6 +124,7 @@ impl LmSession {
                     outputs: output_names(cfg).len(),
                     file: &file,
                     f32_shapes: &[],
+                    batch: None,
                 };
                 Backend::Engine(engine.load(&bytes, &spec)?)
             }

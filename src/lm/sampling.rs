@@ -236,9 +236,26 @@ impl Sampling {
         if self.temperature == 0.0 {
             return argmax();
         }
+        let t = self.temperature as f32;
+        if self.top_k == 0 && self.top_p >= 1.0 {
+            // Nothing is cut: draw straight from the weights, unsorted.
+            let m = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            let w: Vec<f64> = logits.iter().map(|&x| ((x - m) / t).exp() as f64).collect();
+            let mut u = rng.gen::<f64>() * w.iter().sum::<f64>();
+            let mut last = 0;
+            for (i, &wi) in w.iter().enumerate() {
+                if wi > 0.0 {
+                    last = i;
+                    u -= wi;
+                    if u <= 0.0 {
+                        return i;
+                    }
+                }
+            }
+            return last;
+        }
         let mut idx: Vec<usize> = (0..logits.len()).collect();
         idx.sort_by(|&a, &b| logits[b].total_cmp(&logits[a]));
-        let t = self.temperature as f32;
         let m = logits[idx[0]];
         let mut w: Vec<f64> = idx
             .iter()

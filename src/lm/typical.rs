@@ -47,17 +47,32 @@ pub(super) fn frame_jerk(c: &FrameConfig, before: [&[u32]; 3], f: &[u32]) -> f64
     sum.sqrt()
 }
 
-fn log_softmax(x: &[f32]) -> Vec<f64> {
-    let m = x.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b)) as f64;
-    let z: f64 = x.iter().map(|&v| (v as f64 - m).exp()).sum();
-    let lz = m + z.ln();
-    x.iter().map(|&v| v as f64 - lz).collect()
+/// The log of Σ e^x over `x` (−∞ when empty or all −∞).
+fn log_sum_exp(x: impl Iterator<Item = f32> + Clone) -> f64 {
+    let m = x.clone().fold(f32::NEG_INFINITY, f32::max);
+    if m == f32::NEG_INFINITY {
+        return f64::NEG_INFINITY;
+    }
+    let z: f64 = x.map(|v| (v - m).exp() as f64).sum();
+    m as f64 + z.ln()
 }
 
-fn entropy(lp: &[f64]) -> f64 {
-    lp.iter()
-        .map(|&l| if l.is_finite() { -l.exp() * l } else { 0.0 })
-        .sum()
+/// The log-probability of class `k` under the softmax of `x`, and that
+/// distribution's entropy, in one pass: with z = Σ e^{x − m} and
+/// s = Σ e^{x − m} (x − m), H = ln z − s / z.
+fn log_p_and_entropy(x: &[f32], k: usize) -> (f64, f64) {
+    let m = x.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let (mut z, mut s) = (0.0f64, 0.0f64);
+    for &v in x {
+        let d = v - m;
+        if d.is_finite() {
+            let e = d.exp() as f64;
+            z += e;
+            s += e * d as f64;
+        }
+    }
+    let lz = z.ln();
+    ((x[k] - m) as f64 - lz, lz - s / z)
 }
 
 /// A drawn token's surprise (nats) under the model's unmodified
@@ -69,29 +84,23 @@ pub(super) fn surprise_of(
     tok: u32,
 ) -> (f64, f64) {
     let Some(p) = p1 else {
-        let lp = log_softmax(abs);
-        return (-lp[tok as usize], entropy(&lp));
+        let (lp, h) = log_p_and_entropy(abs, tok as usize);
+        return (-lp, h);
     };
     let r0 = c.radius as i64;
-    let lr = log_softmax(&rel[..c.rel_classes()]);
-    let h = entropy(&lr);
     let k = c.change(Some(p), tok) as usize;
+    let (lr, h) = log_p_and_entropy(&rel[..c.rel_classes()], k);
     if k != c.esc() as usize {
-        return (-lr[k], h);
+        return (-lr, h);
     }
-    let outside: Vec<f32> = abs
+    // An escape also pays the absolute head's share among the bins
+    // outside the change window.
+    let outside = abs
         .iter()
         .enumerate()
-        .map(|(b, &x)| {
-            if (b as i64 - p as i64).abs() <= r0 {
-                f32::NEG_INFINITY
-            } else {
-                x
-            }
-        })
-        .collect();
-    let la = log_softmax(&outside);
-    (-lr[k] - la[tok as usize], h)
+        .filter(|&(b, _)| (b as i64 - p as i64).abs() > r0)
+        .map(|(_, &x)| x);
+    (-lr - (abs[tok as usize] as f64 - log_sum_exp(outside)), h)
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ use super::export::{attr_i, value_info, Builder, DataType};
 use super::frame::FrameNet;
 use crate::lm::frame::{
     global_inputs, global_outputs, local_inputs, local_outputs, FrameConfig, FrameManifest,
-    FRAME_KIND, GLOBAL_ONNX, LOCAL_ONNX,
+    FRAME_KIND, GLOBAL_ONNX, LOCAL_BATCH, LOCAL_ONNX,
 };
 use crate::lm::manifest::{sha256_hex, DataInfo, MANIFEST_FORMAT};
 use crate::tokenize::vocab::Vocabulary;
@@ -61,8 +61,11 @@ fn cached_blocks(
     x
 }
 
+/// Key/value inputs (`[batch, H, cap, dh]`) or outputs (`[batch, H, 1,
+/// dh]`); `batch` a number or a symbol.
 fn kv_info(
     names: &[String],
+    batch: &str,
     heads: usize,
     cap: usize,
     dh: usize,
@@ -75,7 +78,7 @@ fn kv_info(
             value_info(
                 n,
                 DataType::Float,
-                &["1", &heads.to_string(), &len.to_string(), &dh.to_string()],
+                &[batch, &heads.to_string(), &len.to_string(), &dh.to_string()],
             )
         })
         .collect()
@@ -148,7 +151,7 @@ pub fn global_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
         value_info("pos", DataType::Int64, &["1"]),
         value_info("bias", DataType::Float, &["1", &(cap + 1).to_string()]),
     ];
-    inputs.extend(kv_info(&names[6..], c.global_heads, cap, dh, false));
+    inputs.extend(kv_info(&names[6..], "1", c.global_heads, cap, dh, false));
     let outs = global_outputs(c);
     let mut outputs = vec![value_info(
         "h",
@@ -164,6 +167,7 @@ pub fn global_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
     }
     outputs.extend(kv_info(
         &outs[1 + c.classes.len()..],
+        "1",
         c.global_heads,
         cap,
         dh,
@@ -195,7 +199,7 @@ pub fn local_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
         let e = gather(&mut g, table, ids);
         x = g.op("Add", &[&x, &e], vec![], None);
     }
-    let shape = g.i64("shape_one", &[1, 1, c.d_local as i64]);
+    let shape = g.i64("shape_one", &[-1, 1, c.d_local as i64]);
     let x = g.op("Reshape", &[&x, &shape], vec![], None);
     let x = cached_blocks(
         &mut g,
@@ -214,25 +218,28 @@ pub fn local_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
     let cap = c.slots;
     let dh = c.d_local / c.local_heads;
     let names = local_inputs(c);
+    // The batch (candidate frames decoded side by side, `sampling.draws`)
+    // is a symbol; the slot and the mask are shared by the batch.
+    let b = LOCAL_BATCH;
     let mut inputs = vec![
-        value_info("ctx", DataType::Float, &["1", &c.d_global.to_string()]),
-        value_info("inp", DataType::Int64, &["1"]),
-        value_info("vel", DataType::Int64, &["1"]),
-        value_info("prev", DataType::Int64, &["1"]),
+        value_info("ctx", DataType::Float, &[b, &c.d_global.to_string()]),
+        value_info("inp", DataType::Int64, &[b]),
+        value_info("vel", DataType::Int64, &[b]),
+        value_info("prev", DataType::Int64, &[b]),
         value_info("slot", DataType::Int64, &["1"]),
         value_info("bias", DataType::Float, &["1", &(cap + 1).to_string()]),
     ];
-    inputs.extend(kv_info(&names[6..], c.local_heads, cap, dh, false));
+    inputs.extend(kv_info(&names[6..], b, c.local_heads, cap, dh, false));
     let outs = local_outputs(c);
     let mut outputs = vec![
         value_info(
             "rel",
             DataType::Float,
-            &["1", "1", &c.rel_classes().to_string()],
+            &[b, "1", &c.rel_classes().to_string()],
         ),
-        value_info("abs", DataType::Float, &["1", "1", &c.bins.to_string()]),
+        value_info("abs", DataType::Float, &[b, "1", &c.bins.to_string()]),
     ];
-    outputs.extend(kv_info(&outs[2..], c.local_heads, cap, dh, true));
+    outputs.extend(kv_info(&outs[2..], b, c.local_heads, cap, dh, true));
     Ok(g.model("choreo_frame_local", inputs, outputs))
 }
 
@@ -300,6 +307,21 @@ pub fn parity(
         .collect();
     let got = session.teacher_forced(&cond, &frames)?;
     let (mut worst, mut scale) = (0f32, 0f32);
+    // The batched local graph (candidate frames side by side) against the
+    // one-at-a-time runs: three frames of the window as candidates after
+    // its first two, under the state after its conditioning.
+    if n >= 5 {
+        let g = session.state_after(&cond, &frames[..2])?;
+        let cands = frames[2..5].to_vec();
+        let ctx = (Some(frames[1].as_slice()), Some(frames[0].as_slice()));
+        let one = session.local_logits(&g, ctx, &cands, false)?;
+        let side = session.local_logits(&g, ctx, &cands, true)?;
+        for ((r1, a1), (r2, a2)) in one.iter().zip(&side) {
+            for (x, y) in r1.iter().chain(a1).zip(r2.iter().chain(a2)) {
+                worst = worst.max((x - y).abs());
+            }
+        }
+    }
     let (nr, na) = (c.slots * c.rel_classes(), c.slots * c.bins);
     for (f, (r, a)) in got.iter().enumerate() {
         for (x, y) in r.iter().zip(&rel[f * nr..(f + 1) * nr]) {
@@ -312,4 +334,81 @@ pub fn parity(
         }
     }
     Ok((worst, scale))
+}
+
+/// Rewrites an exported frame model's local graph (in `dir`) with the
+/// batch dimension, its weights read back unchanged, and its hash in
+/// `manifest.json` (every other field kept as written): an export from
+/// before the batch dimension then decodes `sampling.draws` candidates
+/// side by side. Checks the new graph against the old one on a probe (a
+/// state after two frames, three candidate frames), one at a time and
+/// batched; returns the two largest differences of the logits. A graph
+/// that already has the dimension is left alone (None).
+pub fn upgrade_local(dir: &Path) -> anyhow::Result<Option<(f32, f32)>> {
+    use crate::lm::frame_runtime::FrameSession;
+    use crate::lm::manifest::{read_manifest, read_onnx_checked};
+    let (file, name, m): (_, _, FrameManifest) = read_manifest(dir)?;
+    if m.kind != FRAME_KIND {
+        anyhow::bail!("{name}: field `kind`: {:?}, want {FRAME_KIND:?}", m.kind);
+    }
+    let (path, _) = read_onnx_checked(&file, &name, &m.local_onnx, &m.local_sha256)?;
+    let old = FrameSession::load(dir)?;
+    if old.batches()? {
+        return Ok(None);
+    }
+    let dev = super::device();
+    let net = FrameNet::new(m.config.clone(), &dev)?;
+    let t = super::export::float_initializers(&path, &dev)?;
+    let missing = net.params.load_matching(&t, &path.display().to_string())?;
+    if let Some(n) = missing
+        .iter()
+        .find(|n| n.starts_with('l') || n.starts_with("rel.") || n.starts_with("abs."))
+    {
+        anyhow::bail!("{}: the local graph lacks the weight {n}", path.display());
+    }
+    // A probe: smooth frames round mid-range, every slot its own phase.
+    let c = &m.config;
+    let frames: Vec<Vec<u32>> = (0..5)
+        .map(|f| {
+            (0..c.slots)
+                .map(|s| {
+                    let x = (0.3 * f as f64 + s as f64).sin() * 6.0;
+                    (c.bins as f64 / 2.0 + x).round() as u32
+                })
+                .collect()
+        })
+        .collect();
+    let cond = old.cond(&crate::motion::Labels::new())?;
+    let probe = |s: &FrameSession, batched: bool| -> anyhow::Result<Vec<f32>> {
+        let h = s.state_after(&cond, &frames[..2])?;
+        let ctx = (Some(frames[1].as_slice()), Some(frames[0].as_slice()));
+        let out = s.local_logits(&h, ctx, &frames[2..5], batched)?;
+        Ok(out
+            .into_iter()
+            .flat_map(|(r, a)| r.into_iter().chain(a))
+            .collect())
+    };
+    let before = probe(&old, false)?;
+    let bytes = local_model(&net)?.encode_to_vec();
+    // The manifest's text changes in the one hash (its other fields, and
+    // their order and layout, stay as written).
+    let text = std::fs::read_to_string(&file)?;
+    let quoted = format!("\"{}\"", m.local_sha256);
+    if text.matches(&quoted).count() != 1 {
+        anyhow::bail!("{name}: the local graph's hash is not written once");
+    }
+    let text = text.replace(&quoted, &format!("\"{}\"", sha256_hex(&bytes)));
+    let tmp = path.with_extension("onnx.new");
+    std::fs::write(&tmp, &bytes)?;
+    std::fs::rename(&tmp, &path)?;
+    std::fs::write(&file, text)?;
+    let new = FrameSession::load(dir)?;
+    let worst = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0f32, f32::max)
+    };
+    let (one, side) = (probe(&new, false)?, probe(&new, true)?);
+    Ok(Some((worst(&before, &one), worst(&before, &side))))
 }

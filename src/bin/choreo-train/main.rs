@@ -196,6 +196,15 @@ enum Cmd {
     },
     /// Train (from scratch, from --init, or --resume) and optionally export.
     Train(Box<TrainArgs>),
+    /// Rewrite an exported frame model's local graph with the batch
+    /// dimension (its weights unchanged; the manifest's hash updated), so
+    /// the candidate frames of `sampling.draws` decode side by side, and
+    /// check the new graph against the old. Models exported before the
+    /// dimension still load and draw their candidates one at a time.
+    UpgradeFrame {
+        #[arg(long)]
+        model: PathBuf,
+    },
     /// Export a checkpoint as ONNX + manifest.
     Export {
         #[arg(long)]
@@ -381,6 +390,24 @@ fn run(cli: Cli) -> Result<()> {
                 export_frame(&net, &vocab, &corpus, &st, &dir, &engine)?;
             }
             print_frame_table(&net, &vocab, &corpus, &st.metrics)
+        }
+        Cmd::UpgradeFrame { model } => {
+            match choreo::train::frame_export::upgrade_local(&model)? {
+                None => println!(
+                    "{}: the local graph already has the batch dimension",
+                    model.display()
+                ),
+                Some((one, side)) => {
+                    println!(
+                        "{}: local graph rewritten with the batch dimension; largest logit difference from the old graph {one:.2e} (one at a time), {side:.2e} (batched)",
+                        model.display()
+                    );
+                    if one.max(side) > 1e-3 {
+                        bail!("the rewritten graph disagrees with the old one");
+                    }
+                }
+            }
+            Ok(())
         }
         Cmd::Export { checkpoint, out } => {
             let (_, model, m) = export_checkpoint(&checkpoint, &out)?;
