@@ -69,9 +69,26 @@ pub fn run(
         g.sort_by(f64::total_cmp);
         l.sort_by(f64::total_cmp);
         local_p50 = Some(percentile(&l, 0.5));
+        // Four candidate frames' local steps side by side (the batch
+        // `sampling.draws` 4 runs), per slot, where the graph can batch.
+        let c = s.config();
+        let mid = vec![(v.bins / 2) as u32; c.slots];
+        let cands = vec![mid.clone(); 4];
+        let h = s.state_after(&s.cond(&Default::default())?, &[mid.clone(), mid.clone()])?;
+        let ctx = (Some(mid.as_slice()), Some(mid.as_slice()));
+        let mut x4 = Vec::new();
+        if s.batches()? {
+            for _ in 0..repeats.max(5) {
+                let t = Instant::now();
+                s.local_logits(&h, ctx, &cands, true)?;
+                x4.push(t.elapsed().as_secs_f64() * 1e3 / c.slots as f64);
+            }
+            x4.sort_by(f64::total_cmp);
+        }
         steps = serde_json::json!({
             "global_step_ms_p50": percentile(&g, 0.5),
             "local_step_ms_p50": local_p50,
+            "local_step_x4_ms_p50": (!x4.is_empty()).then(|| percentile(&x4, 0.5)),
         });
         window = serde_json::json!({"window_frames": s.config().max_frames, "window_forward_ms": per * 1e3});
     }

@@ -336,14 +336,14 @@ pub fn parity(
     Ok((worst, scale))
 }
 
-/// Rewrites an exported frame model's local graph (in `dir`) with the
-/// batch dimension, its weights read back unchanged, and its hash in
+/// Rewrites an exported frame model's local graph (in `dir`) as this
+/// exporter writes it, its weights read back unchanged, and its hash in
 /// `manifest.json` (every other field kept as written): an export from
 /// before the batch dimension then decodes `sampling.draws` candidates
 /// side by side. Checks the new graph against the old one on a probe (a
 /// state after two frames, three candidate frames), one at a time and
 /// batched; returns the two largest differences of the logits. A graph
-/// that already has the dimension is left alone (None).
+/// already as the exporter writes it is left alone (None).
 pub fn upgrade_local(dir: &Path) -> anyhow::Result<Option<(f32, f32)>> {
     use crate::lm::frame_runtime::FrameSession;
     use crate::lm::manifest::{read_manifest, read_onnx_checked};
@@ -351,11 +351,8 @@ pub fn upgrade_local(dir: &Path) -> anyhow::Result<Option<(f32, f32)>> {
     if m.kind != FRAME_KIND {
         anyhow::bail!("{name}: field `kind`: {:?}, want {FRAME_KIND:?}", m.kind);
     }
-    let (path, _) = read_onnx_checked(&file, &name, &m.local_onnx, &m.local_sha256)?;
+    let (path, current) = read_onnx_checked(&file, &name, &m.local_onnx, &m.local_sha256)?;
     let old = FrameSession::load(dir)?;
-    if old.batches()? {
-        return Ok(None);
-    }
     let dev = super::device();
     let net = FrameNet::new(m.config.clone(), &dev)?;
     let t = super::export::float_initializers(&path, &dev)?;
@@ -388,8 +385,11 @@ pub fn upgrade_local(dir: &Path) -> anyhow::Result<Option<(f32, f32)>> {
             .flat_map(|(r, a)| r.into_iter().chain(a))
             .collect())
     };
-    let before = probe(&old, false)?;
     let bytes = local_model(&net)?.encode_to_vec();
+    if bytes == current {
+        return Ok(None);
+    }
+    let before = probe(&old, false)?;
     // The manifest's text changes in the one hash (its other fields, and
     // their order and layout, stay as written).
     let text = std::fs::read_to_string(&file)?;

@@ -394,7 +394,7 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::UpgradeFrame { model } => {
             match choreo::train::frame_export::upgrade_local(&model)? {
                 None => println!(
-                    "{}: the local graph already has the batch dimension",
+                    "{}: the local graph is already as this exporter writes it",
                     model.display()
                 ),
                 Some((one, side)) => {
