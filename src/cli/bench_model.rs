@@ -125,21 +125,8 @@ pub fn run(
             draws: 4,
             ..g_sampling.clone()
         };
-        let mut g4 = model.generator(&Default::default(), &[], four)?;
-        let mut lat4 = Vec::with_capacity(frames);
-        let t = Instant::now();
-        for _ in 0..frames {
-            let t1 = Instant::now();
-            g4.next_frame(&free)?;
-            lat4.push(t1.elapsed().as_secs_f64() * 1e3);
-        }
-        let total4 = t.elapsed().as_secs_f64();
-        lat4.sort_by(f64::total_cmp);
-        draws4 = serde_json::json!({
-            "frame_ms_p50": percentile(&lat4, 0.5),
-            "frame_ms_p99": percentile(&lat4, 0.99),
-            "real_time_factor": frames as f64 / v.fps / total4,
-        });
+        let g4 = model.generator(&Default::default(), &[], four)?;
+        draws4 = stream(g4, frames, &free, v.fps)?;
     }
     // What a request with the labels and no sampling gets: the service's
     // recommended sampling with the model's defaults for the label kinds.
@@ -147,23 +134,10 @@ pub fn run(
     if !labels.is_empty() {
         let mut s = Sampling::recommended(1);
         model.fill_defaults(labels.keys(), &mut s, Default::default());
-        let mut g = model.generator(labels, &[], s.clone())?;
-        let mut lat = Vec::with_capacity(frames);
-        let t = Instant::now();
-        for _ in 0..frames {
-            let t1 = Instant::now();
-            g.next_frame(&free)?;
-            lat.push(t1.elapsed().as_secs_f64() * 1e3);
-        }
-        let total = t.elapsed().as_secs_f64();
-        lat.sort_by(f64::total_cmp);
-        labelled = serde_json::json!({
-            "labels": labels,
-            "sampling": choreo::eval::generate::sampling_name(&s),
-            "frame_ms_p50": percentile(&lat, 0.5),
-            "frame_ms_p99": percentile(&lat, 0.99),
-            "real_time_factor": frames as f64 / v.fps / total,
-        });
+        let g = model.generator(labels, &[], s.clone())?;
+        labelled = stream(g, frames, &free, v.fps)?;
+        labelled["labels"] = serde_json::json!(labels);
+        labelled["sampling"] = choreo::eval::generate::sampling_name(&s).into();
     }
     // A duet: a real motion as the performer, one frame in, one out.
     let mut duet_json = serde_json::Value::Null;
@@ -226,4 +200,28 @@ pub fn run(
         println!("{}", serde_json::to_string_pretty(&out)?);
     }
     Ok(())
+}
+
+/// Streams `frames` frames from `g`: per-frame latency p50 / p99 (ms) and
+/// the real-time factor at `fps`.
+fn stream(
+    mut g: choreo::lm::model::MotionGenerator,
+    frames: usize,
+    free: &[Option<u32>],
+    fps: f64,
+) -> Result<serde_json::Value> {
+    let mut lat = Vec::with_capacity(frames);
+    let t = Instant::now();
+    for _ in 0..frames {
+        let t1 = Instant::now();
+        g.next_frame(free)?;
+        lat.push(t1.elapsed().as_secs_f64() * 1e3);
+    }
+    let total = t.elapsed().as_secs_f64();
+    lat.sort_by(f64::total_cmp);
+    Ok(serde_json::json!({
+        "frame_ms_p50": percentile(&lat, 0.5),
+        "frame_ms_p99": percentile(&lat, 0.99),
+        "real_time_factor": frames as f64 / fps / total,
+    }))
 }

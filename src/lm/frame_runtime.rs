@@ -140,13 +140,7 @@ impl FrameSession {
     }
 
     pub(super) fn new_local_cache(&self) -> Cache {
-        let c = self.config();
-        Cache::new(
-            c.local_layers,
-            c.local_heads,
-            c.slots,
-            c.d_local / c.local_heads,
-        )
+        self.new_local_caches(1)
     }
 
     /// One global step: the conditioning (`frame` = None) or one frame of
