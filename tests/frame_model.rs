@@ -1101,6 +1101,10 @@ fn eval_generate_reports_every_metric_on_real_held_out_clips() {
             assert!(lo.is_finite() && lo >= 0.0 && lo <= hi, "{r:?}");
         }
         assert!((0.0..=1.0).contains(&r.frozen) && (0.0..=1.0).contains(&r.cond_acc));
+        // The held-out clips' own still windows, by the same test: the same
+        // for every row, and rare in real dance.
+        assert_eq!(r.frozen_real, rows[0].frozen_real, "{r:?}");
+        assert!((0.0..0.2).contains(&r.frozen_real), "{r:?}");
         // One accuracy per asked-for value; each clip has the same number
         // of judge windows, so their mean is the row's.
         assert_eq!(r.cond_acc_by_label.len(), r.labels, "{r:?}");

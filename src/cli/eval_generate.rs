@@ -179,12 +179,12 @@ pub fn run(
         PathBuf::from(data).display()
     );
     println!(
-        "| sampling | FID_k [5–95 % over resampled clips] (real; real at this clip count) | FID_g [5–95 %] (real; same count) | accel × | jerk × | skate × | frozen | diversity (real) | cond acc (real) | s/clip |"
+        "| sampling | FID_k [5–95 % over resampled clips] (real; real at this clip count) | FID_g [5–95 %] (real; same count) | accel × | jerk × | skate × | frozen (real) | diversity (real) | cond acc (real) | s/clip |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|");
     for r in &rows {
         println!(
-            "| {} | {}{} ({}; {}) | {}{} ({}; {}) | {:.2} | {:.2} | {:.2} | {:.0} % | {:.2} ({:.2}) | {:.0} % ({:.0} %) | {:.2} |",
+            "| {} | {}{} ({}; {}) | {}{} ({}; {}) | {:.2} | {:.2} | {:.2} | {:.0} % ({:.0} %) | {:.2} ({:.2}) | {:.0} % ({:.0} %) | {:.2} |",
             r.sampling,
             f(r.fid_k),
             range(r.fid_k_range),
@@ -198,6 +198,7 @@ pub fn run(
             r.jerk_ratio,
             r.skate_ratio,
             100.0 * r.frozen,
+            100.0 * r.frozen_real,
             r.diversity,
             r.diversity_real,
             100.0 * r.cond_acc,

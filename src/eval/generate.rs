@@ -10,7 +10,8 @@
 //!   (acceleration and jerk on root-relative joint positions; skating on
 //!   the ankles' ground speed while within 3 cm of the clip's lowest ankle);
 //! - the frozen fraction: 1 s windows whose mean root-relative joint speed
-//!   is under a tenth of the held-out clips' mean;
+//!   is under a tenth of the held-out clips' mean, beside the same share
+//!   of the held-out clips' own windows (real dancers hold still too);
 //! - diversity: mean pairwise distance of standardised kinetic features,
 //!   generated and real;
 //! - conditioning accuracy: an LDA fitted on real *training* windows only
@@ -301,6 +302,16 @@ pub fn eval_generate(
     let tk: Vec<Vec<f64>> = real_train.iter().map(|r| r.1.kinetic.clone()).collect();
     let tg: Vec<Vec<f64>> = real_train.iter().map(|r| r.1.geometric.clone()).collect();
     let real_speed = mean(real.iter().flat_map(|r| r.1.window_speed.iter().copied()));
+    // The share of 1 s windows under a tenth of the held-out clips' mean
+    // speed: generated clips' (`frozen`), and the held-out clips' own
+    // (`frozen_real`, how often real dancers hold still).
+    let still = |w: &mut dyn Iterator<Item = f64>| -> f64 {
+        let (n, k) = w.fold((0usize, 0usize), |(n, k), s| {
+            (n + 1, k + (s < 0.1 * real_speed) as usize)
+        });
+        k as f64 / n.max(1) as f64
+    };
+    let frozen_real = still(&mut real.iter().flat_map(|r| r.1.window_speed.iter().copied()));
     let real_accel = mean(real.iter().map(|r| r.1.accel));
     let real_jerk = mean(real.iter().map(|r| r.1.jerk));
     let real_skate = mean(real.iter().map(|r| r.1.skate));
@@ -443,13 +454,7 @@ pub fn eval_generate(
                 .collect::<anyhow::Result<_>>()?;
             let gk: Vec<Vec<f64>> = gen.iter().map(|r| r.1.kinetic.clone()).collect();
             let gg: Vec<Vec<f64>> = gen.iter().map(|r| r.1.geometric.clone()).collect();
-            let frozen = {
-                let w: Vec<f64> = gen
-                    .iter()
-                    .flat_map(|r| r.1.window_speed.iter().copied())
-                    .collect();
-                w.iter().filter(|&&s| s < 0.1 * real_speed).count() as f64 / w.len().max(1) as f64
-            };
+            let frozen = still(&mut gen.iter().flat_map(|r| r.1.window_speed.iter().copied()));
             let refs: Vec<(String, &ClipStats)> = gen.iter().map(|(v, s)| (v.clone(), s)).collect();
             let (by_window, by_label) = judged(&refs);
             let (tilt_out, floor_out) = out_share(&refs);
@@ -512,6 +517,7 @@ pub fn eval_generate(
                 jerk_ratio: mean(gen.iter().map(|r| r.1.jerk)) / real_jerk.max(1e-12),
                 skate_ratio: mean(gen.iter().map(|r| r.1.skate)) / real_skate.max(1e-12),
                 frozen,
+                frozen_real,
                 diversity: diversity(&gk, &rk),
                 diversity_real: diversity(&rk, &rk),
                 cond_acc: overall(&by_window),

@@ -48,6 +48,8 @@ pub struct GenRow {
     pub jerk_ratio: f64,
     pub skate_ratio: f64,
     pub frozen: f64,
+    /// The held-out real clips' own share of still windows (the same test).
+    pub frozen_real: f64,
     pub diversity: f64,
     pub diversity_real: f64,
     pub cond_acc: f64,
