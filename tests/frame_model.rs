@@ -1636,7 +1636,7 @@ fn an_older_local_graph_draws_candidates_one_at_a_time_until_upgraded() {
     let c = corpus(&v);
     let net = trained(&v, &c, 20);
     let dir = export(&net, &v);
-    assert!(FrameSession::load(dir.path()).unwrap().batches().unwrap());
+    assert!(FrameSession::load(dir.path()).unwrap().batches());
     // The local graph as exports before the batch dimension wrote it:
     // every batch dimension fixed at 1 (the manifest's hash follows).
     let path = dir.path().join("local.onnx");
@@ -1662,7 +1662,7 @@ fn an_older_local_graph_draws_candidates_one_at_a_time_until_upgraded() {
     let new = choreo::lm::manifest::sha256_hex(&bytes);
     std::fs::write(&path, &bytes).unwrap();
     std::fs::write(&mf, text.replace(&old, &new)).unwrap();
-    assert!(!FrameSession::load(dir.path()).unwrap().batches().unwrap());
+    assert!(!FrameSession::load(dir.path()).unwrap().batches());
 
     // It loads and draws four candidates a frame, one after another.
     let fl = v.frame_len();
@@ -1691,7 +1691,7 @@ fn an_older_local_graph_draws_candidates_one_at_a_time_until_upgraded() {
     let (one, side) = frame_export::upgrade_local(dir.path()).unwrap().unwrap();
     eprintln!("upgraded: {one:.1e} one at a time, {side:.1e} batched");
     assert!(one < 1e-6 && side < 1e-4, "{one} {side}");
-    assert!(FrameSession::load(dir.path()).unwrap().batches().unwrap());
+    assert!(FrameSession::load(dir.path()).unwrap().batches());
     assert!(frame_export::upgrade_local(dir.path()).unwrap().is_none());
     let after = run();
     assert_eq!(after.len(), 30 * fl);

@@ -128,7 +128,7 @@ fn tract_and_ort_agree_on_the_frame_model() {
     assert!(worst < 1e-4, "{worst}");
     // Candidate frames side by side (the local graph's batch dimension):
     // both runtimes, against each other and against one at a time.
-    assert!(t.batches().unwrap() && o.batches().unwrap());
+    assert!(t.batches() && o.batches());
     let h = t.state_after(&cond, &fs[..2]).unwrap();
     let ctx = (Some(fs[1].as_slice()), Some(fs[0].as_slice()));
     let cands = &fs[2..6];

@@ -77,7 +77,7 @@ pub fn run(
         let h = s.state_after(&s.cond(&Default::default())?, &[mid.clone(), mid.clone()])?;
         let ctx = (Some(mid.as_slice()), Some(mid.as_slice()));
         let mut x4 = Vec::new();
-        if s.batches()? {
+        if s.batches() {
             for _ in 0..repeats.max(5) {
                 let t = Instant::now();
                 s.local_logits(&h, ctx, &cands, true)?;

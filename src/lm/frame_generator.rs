@@ -279,24 +279,15 @@ impl FrameGenerator {
         } else {
             self.sampling.draws.max(1)
         };
+        let ctx = (&vel[..], &prev[..], p1.as_deref());
         let cands = if n > 1 && self.lbatch.is_some() {
-            self.draw_frames(
-                &session,
-                forced,
-                (&vel, &prev, p1.as_deref()),
-                pull.as_ref(),
-                n as usize,
-            )?
+            self.draw_frames(&session, forced, ctx, pull.as_ref(), (n as usize, true))?
         } else {
             let mut cands = Vec::with_capacity(n as usize);
             for _ in 0..n {
-                cands.push(self.draw_frame(
-                    &session,
-                    forced,
-                    (&vel, &prev, p1.as_deref()),
-                    pull.as_ref(),
-                    n > 1,
-                )?);
+                // A graph without the batch dimension: one at a time.
+                let one = (1, n > 1);
+                cands.extend(self.draw_frames(&session, forced, ctx, pull.as_ref(), one)?);
             }
             cands
         };
@@ -390,80 +381,47 @@ impl FrameGenerator {
 }
 
 impl FrameGenerator {
-    /// One candidate frame drawn slot by slot through the local decoder,
-    /// with its surprise under the model's own distribution (nats, the
-    /// change head's; an escape also pays the absolute head's share among
-    /// the bins outside the change window) and that surprise's expectation
-    /// (the summed entropies of the slots' distributions, given the slots
-    /// drawn before them). Forced slots count in neither, and nothing
-    /// does unless `score` (a lone candidate needs no score: plain
-    /// drawing pays nothing for it).
-    fn draw_frame(
-        &mut self,
-        session: &FrameSession,
-        forced: &[Option<u32>],
-        (vel, prev, p1): (&[u32], &[u32], Option<&[u32]>),
-        pull: Option<&super::posture::FramePull<'_>>,
-        score: bool,
-    ) -> Result<(Vec<u32>, f64, f64), LmError> {
-        let c = session.config();
-        let mut local = session.new_local_cache();
-        let mut frame = Vec::with_capacity(c.slots + 1);
-        let mut inp = c.start();
-        let mut scores = (0.0, 0.0);
-        for s in 0..c.slots {
-            session.local_step(&mut self.lstate, &mut local, &self.h, inp, vel[s], prev[s])?;
-            let out = &self.lstate.out;
-            let tok = slot_token(
-                (&self.sampling, &mut self.rng, c),
-                (s, forced[s], p1),
-                (out.data(0), out.data(1)),
-                pull,
-                &frame,
-                score.then_some(&mut scores),
-            )?;
-            inp = c.change(p1.map(|p| p[s]), tok);
-            frame.push(tok);
-        }
-        Ok((frame, scores.0, scores.1))
-    }
-
-    /// `n` candidate frames drawn as [`Self::draw_frame`] draws one, side
-    /// by side: one batched local run a slot for all of them (the global
-    /// state, the slot and its context are theirs in common), each scored.
+    /// `n` candidate frames drawn slot by slot through the local decoder,
+    /// side by side (one local run a slot for all; `n` > 1 needs the
+    /// batched state), each with its surprise under the model's own
+    /// distribution (nats, the change head's; an escape also pays the
+    /// absolute head's share among the bins outside the change window) and
+    /// that surprise's expectation (the summed entropies of the slots'
+    /// distributions, given the slots drawn before them). Forced slots
+    /// count in neither, and nothing does unless `score` (a lone candidate
+    /// needs no score: plain drawing pays nothing for it).
     fn draw_frames(
         &mut self,
         session: &FrameSession,
         forced: &[Option<u32>],
         (vel, prev, p1): (&[u32], &[u32], Option<&[u32]>),
         pull: Option<&super::posture::FramePull<'_>>,
-        n: usize,
+        (n, score): (usize, bool),
     ) -> Result<Vec<(Vec<u32>, f64, f64)>, LmError> {
         let c = session.config();
-        let st = self.lbatch.as_mut().expect("checked by the caller");
-        let mut local = session.new_local_caches(n);
+        let st = match self.lbatch.as_mut() {
+            Some(st) if n > 1 => st,
+            _ => &mut self.lstate,
+        };
         let mut frames = vec![Vec::with_capacity(c.slots + 1); n];
         let mut scores = vec![(0.0, 0.0); n];
-        let mut inp = vec![c.start() as i64; n];
-        let (rc, bins) = (c.rel_classes(), c.bins);
-        for s in 0..c.slots {
-            session.local_step_batch(st, &mut local, &self.h, &inp, vel[s], prev[s])?;
-            for (b, frame) in frames.iter_mut().enumerate() {
-                let tok = slot_token(
-                    (&self.sampling, &mut self.rng, c),
+        let (sampling, rng) = (&self.sampling, &mut self.rng);
+        session.decode_rows(
+            st,
+            &self.h,
+            (vel, prev, p1),
+            &mut frames,
+            |b, s, logits, frame| {
+                slot_token(
+                    (sampling, &mut *rng, c),
                     (s, forced[s], p1),
-                    (
-                        &st.out.data(0)[b * rc..(b + 1) * rc],
-                        &st.out.data(1)[b * bins..(b + 1) * bins],
-                    ),
+                    logits,
                     pull,
                     frame,
-                    Some(&mut scores[b]),
-                )?;
-                inp[b] = c.change(p1.map(|p| p[s]), tok) as i64;
-                frame.push(tok);
-            }
-        }
+                    score.then_some(&mut scores[b]),
+                )
+            },
+        )?;
         Ok(frames
             .into_iter()
             .zip(scores)

@@ -123,8 +123,8 @@ impl FrameSession {
 
     /// Whether the local graph decodes candidate frames side by side (it
     /// was exported with the batch dimension).
-    pub fn batches(&self) -> Result<bool, LmError> {
-        Ok(self.local_batch(2)?.is_some())
+    pub fn batches(&self) -> bool {
+        self.local.batches()
     }
 
     /// The local caches of `n` candidates side by side.
@@ -180,38 +180,13 @@ impl FrameSession {
         Ok((h, cls))
     }
 
-    /// One local step at slot `cache.len()`: change and absolute logits,
-    /// left in `st.out` (0: change, 1: absolute).
+    /// One local step at slot `cache.len()` for `inp.len()` rows side by
+    /// side (candidate frames; one on a graph without the batch
+    /// dimension), all under the global state `ctx` with the slot's `vel`
+    /// and `prev`: row b's change logits are `st.out.data(0)`'s b-th
+    /// `rel_classes()` row, its absolute logits `data(1)`'s b-th `bins`
+    /// row.
     pub(super) fn local_step(
-        &self,
-        st: &mut Step,
-        cache: &mut Cache,
-        ctx: &[f32],
-        inp: u32,
-        vel: u32,
-        prev: u32,
-    ) -> Result<(), LmError> {
-        let c = self.config();
-        let bias = cache.bias();
-        let ids = [inp as i64, vel as i64, prev as i64, cache.len() as i64];
-        let inputs = [
-            In::F32(&[1, c.d_global], ctx),
-            In::I64(&[1], &ids[0..1]),
-            In::I64(&[1], &ids[1..2]),
-            In::I64(&[1], &ids[2..3]),
-            In::I64(&[1], &ids[3..4]),
-            In::F32(&[1, bias.len()], bias),
-        ];
-        st.st.run(&inputs, Some(cache), &mut st.out)?;
-        cache.push(&st.out, 2)
-    }
-
-    /// One local step for `inp.len()` candidates side by side at slot
-    /// `cache.len()`, all under the global state `ctx` with the slot's
-    /// `vel` and `prev`: candidate b's change logits are `st.out.data(0)`'s
-    /// b-th `rel_classes()` row, its absolute logits `data(1)`'s b-th
-    /// `bins` row.
-    pub(super) fn local_step_batch(
         &self,
         st: &mut Step,
         cache: &mut Cache,
@@ -223,9 +198,12 @@ impl FrameSession {
         let c = self.config();
         let n = inp.len();
         let bias = cache.bias();
-        let ctxs: Vec<f32> = (0..n).flat_map(|_| ctx.iter().copied()).collect();
-        let vels = vec![vel as i64; n];
-        let prevs = vec![prev as i64; n];
+        let ctxs: std::borrow::Cow<[f32]> = if n == 1 {
+            ctx.into()
+        } else {
+            (0..n).flat_map(|_| ctx.iter().copied()).collect()
+        };
+        let (vels, prevs) = (vec![vel as i64; n], vec![prev as i64; n]);
         let slot = [cache.len() as i64];
         let inputs = [
             In::F32(&[n, c.d_global], &ctxs),
@@ -237,6 +215,40 @@ impl FrameSession {
         ];
         st.st.run(&inputs, Some(cache), &mut st.out)?;
         cache.push(&st.out, 2)
+    }
+
+    /// Decodes the slots of `rows.len()` frames side by side under the
+    /// global state `ctx` after `p1` (`vel`, `prev`: the slots' local
+    /// context), one local run a slot: `st` holds a plan for that many
+    /// rows. Each row's slot token comes from `token(b, s, logits)` (the
+    /// row's change and absolute logits; a teacher's token, or a draw),
+    /// which may also record them; it is appended to `rows[b]`.
+    pub(super) fn decode_rows(
+        &self,
+        st: &mut Step,
+        ctx: &[f32],
+        (vel, prev, p1): (&[u32], &[u32], Option<&[u32]>),
+        rows: &mut [Vec<u32>],
+        mut token: impl FnMut(usize, usize, (&[f32], &[f32]), &[u32]) -> Result<u32, LmError>,
+    ) -> Result<(), LmError> {
+        let c = self.config();
+        let n = rows.len();
+        let mut cache = self.new_local_caches(n);
+        let mut inp = vec![c.start() as i64; n];
+        let (rc, bins) = (c.rel_classes(), c.bins);
+        for s in 0..c.slots {
+            self.local_step(st, &mut cache, ctx, &inp, vel[s], prev[s])?;
+            for (b, row) in rows.iter_mut().enumerate() {
+                let logits = (
+                    &st.out.data(0)[b * rc..(b + 1) * rc],
+                    &st.out.data(1)[b * bins..(b + 1) * bins],
+                );
+                let t = token(b, s, logits, row)?;
+                inp[b] = c.change(p1.map(|p| p[s]), t) as i64;
+                row.push(t);
+            }
+        }
+        Ok(())
     }
 
     /// Step timings for `choreo bench model`: `repeats` global steps with
@@ -269,11 +281,25 @@ impl FrameSession {
         let mut local = self.new_local_cache();
         let mid = c.slots / 2;
         for _ in 0..mid {
-            self.local_step(&mut ls, &mut local, &h, c.radius as u32, c.radius as u32, 0)?;
+            self.local_step(
+                &mut ls,
+                &mut local,
+                &h,
+                &[c.radius as i64],
+                c.radius as u32,
+                0,
+            )?;
         }
         for _ in 0..repeats {
             let t = std::time::Instant::now();
-            self.local_step(&mut ls, &mut local, &h, c.radius as u32, c.radius as u32, 0)?;
+            self.local_step(
+                &mut ls,
+                &mut local,
+                &h,
+                &[c.radius as i64],
+                c.radius as u32,
+                0,
+            )?;
             l.push(t.elapsed().as_secs_f64() * 1e3);
             local.pop();
         }
@@ -320,18 +346,7 @@ impl FrameSession {
         for (f, frame) in frames.iter().enumerate() {
             let p1 = (f > 0).then(|| frames[f - 1].as_slice());
             let p2 = (f > 1).then(|| frames[f - 2].as_slice());
-            let (vel, prev) = local_context(c, p1, p2);
-            let mut local = self.new_local_cache();
-            let (mut rels, mut abss) = (Vec::new(), Vec::new());
-            let mut inp = c.start();
-            for s in 0..c.slots {
-                self.local_step(&mut ls, &mut local, &h, inp, vel[s], prev[s])?;
-                let (r, a) = (ls.out.data(0).to_vec(), ls.out.data(1).to_vec());
-                rels.extend(r);
-                abss.extend(a);
-                inp = c.change(p1.map(|p| p[s]), frame[s]);
-            }
-            out.push((rels, abss));
+            out.push(self.logits_along(&mut ls, &h, (p1, p2), frame)?);
             h = self
                 .global_step(&mut gs, &mut cache, cond, Some((frame, p1)))?
                 .0;
@@ -368,39 +383,51 @@ impl FrameSession {
         cands: &[Vec<u32>],
         batched: bool,
     ) -> Result<Vec<(Vec<f32>, Vec<f32>)>, LmError> {
-        let c = self.config();
-        let (vel, prev) = local_context(c, p1, p2);
-        let (rc, bins) = (c.rel_classes(), c.bins);
-        let mut out = vec![(Vec::new(), Vec::new()); cands.len()];
-        if batched {
-            let n = cands.len();
-            let mut st = self
-                .local_batch(n)?
-                .ok_or_else(|| LmError::Runtime("the local graph has no batch dimension".into()))?;
-            let mut cache = self.new_local_caches(n);
-            let mut inp = vec![c.start() as i64; n];
-            for s in 0..c.slots {
-                self.local_step_batch(&mut st, &mut cache, ctx, &inp, vel[s], prev[s])?;
-                for (b, (r, a)) in out.iter_mut().enumerate() {
-                    r.extend_from_slice(&st.out.data(0)[b * rc..(b + 1) * rc]);
-                    a.extend_from_slice(&st.out.data(1)[b * bins..(b + 1) * bins]);
-                    inp[b] = c.change(p1.map(|p| p[s]), cands[b][s]) as i64;
-                }
-            }
-        } else {
+        if !batched {
             let (_, mut st) = self.states()?;
-            for (f, (r, a)) in cands.iter().zip(out.iter_mut()) {
-                let mut cache = self.new_local_cache();
-                let mut inp = c.start();
-                for s in 0..c.slots {
-                    self.local_step(&mut st, &mut cache, ctx, inp, vel[s], prev[s])?;
-                    r.extend_from_slice(st.out.data(0));
-                    a.extend_from_slice(st.out.data(1));
-                    inp = c.change(p1.map(|p| p[s]), f[s]);
-                }
-            }
+            return cands
+                .iter()
+                .map(|f| self.logits_along(&mut st, ctx, (p1, p2), f))
+                .collect();
         }
+        let mut st = self
+            .local_batch(cands.len())?
+            .ok_or_else(|| LmError::Runtime("the local graph has no batch dimension".into()))?;
+        let (vel, prev) = local_context(self.config(), p1, p2);
+        let mut out = vec![(Vec::new(), Vec::new()); cands.len()];
+        let mut rows = vec![Vec::new(); cands.len()];
+        self.decode_rows(
+            &mut st,
+            ctx,
+            (&vel, &prev, p1),
+            &mut rows,
+            |b, s, (r, a), _| {
+                out[b].0.extend_from_slice(r);
+                out[b].1.extend_from_slice(a);
+                Ok(cands[b][s])
+            },
+        )?;
         Ok(out)
+    }
+
+    /// One frame's local logits (change, absolute; every slot) with the
+    /// frame's own tokens fed back (teacher forcing), on a one-row state.
+    fn logits_along(
+        &self,
+        st: &mut Step,
+        ctx: &[f32],
+        (p1, p2): (Option<&[u32]>, Option<&[u32]>),
+        frame: &[u32],
+    ) -> Result<(Vec<f32>, Vec<f32>), LmError> {
+        let (vel, prev) = local_context(self.config(), p1, p2);
+        let (mut r, mut a) = (Vec::new(), Vec::new());
+        let mut row = [Vec::new()];
+        self.decode_rows(st, ctx, (&vel, &prev, p1), &mut row, |_, s, (x, y), _| {
+            r.extend_from_slice(x);
+            a.extend_from_slice(y);
+            Ok(frame[s])
+        })?;
+        Ok((r, a))
     }
 
     /// Runs the global transformer, unconditioned, along whole frames of
