@@ -279,27 +279,16 @@ impl FrameSession {
         }
         let mut l = Vec::with_capacity(repeats);
         let mut local = self.new_local_cache();
-        let mid = c.slots / 2;
-        for _ in 0..mid {
-            self.local_step(
-                &mut ls,
-                &mut local,
-                &h,
-                &[c.radius as i64],
-                c.radius as u32,
-                0,
-            )?;
+        let mut step = |local: &mut Cache| {
+            let r0 = c.radius;
+            self.local_step(&mut ls, local, &h, &[r0 as i64], r0 as u32, 0)
+        };
+        for _ in 0..c.slots / 2 {
+            step(&mut local)?;
         }
         for _ in 0..repeats {
             let t = std::time::Instant::now();
-            self.local_step(
-                &mut ls,
-                &mut local,
-                &h,
-                &[c.radius as i64],
-                c.radius as u32,
-                0,
-            )?;
+            step(&mut local)?;
             l.push(t.elapsed().as_secs_f64() * 1e3);
             local.pop();
         }
