@@ -269,6 +269,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         draws: 1,
         pace: 0.0,
         jerk: 0.0,
+        ease: 0.0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;
@@ -523,7 +524,7 @@ fn posture_pulls_the_joints_toward_the_labels_posture() {
     let happy = sine_motion(600, 0.0, "happy");
     let toks = v.prepare(&happy).and_then(|p| v.encode_motion(&p)).unwrap();
     let mut p = Postures::fit(
-        &[("happy".into(), happy.labels.clone(), toks)],
+        &[("happy".into(), happy.labels.clone(), toks.clone())],
         &v,
         &["style".into()],
         &Default::default(),
@@ -569,6 +570,63 @@ fn posture_pulls_the_joints_toward_the_labels_posture() {
         gen(&model, &plain_s),
         "posture 0 leaves the draw as it was"
     );
+    // sampling.ease loosens the pull while the clip is slower than the
+    // motion it continues: a still seed is never faster than the clip, so
+    // the pull stays whole and the clip is the uneased one; a moving seed
+    // eases it (other frames, the same for one seed); with no seed there
+    // is nothing to ease against. Without a pull, or past 10, refused.
+    let eased_s = Sampling {
+        ease: 2.0,
+        ..pulled_s.clone()
+    };
+    assert_eq!(
+        gen(&model, &eased_s),
+        pulled,
+        "no seed, nothing to ease against"
+    );
+    let go_on = |seed: &[u32], s: &Sampling| -> Vec<u32> {
+        let mut g = model.generator(&labels, seed, s.clone()).unwrap();
+        (0..n)
+            .flat_map(|_| g.next_frame(&vec![None; fl]).unwrap())
+            .collect()
+    };
+    let still: Vec<u32> = (0..12).flat_map(|_| toks[..fl].to_vec()).collect();
+    assert_eq!(
+        go_on(&still, &eased_s),
+        go_on(&still, &pulled_s),
+        "a still seed"
+    );
+    let moving = &toks[..12 * fl];
+    let eased = go_on(moving, &eased_s);
+    assert_eq!(eased, go_on(moving, &eased_s), "one seed, one clip");
+    assert_ne!(
+        eased,
+        go_on(moving, &pulled_s),
+        "a moving seed eases the pull"
+    );
+    for (bad, says) in [
+        (
+            Sampling {
+                ease: 1.0,
+                ..plain_s.clone()
+            },
+            "sampling.posture is 0",
+        ),
+        (
+            Sampling {
+                ease: 11.0,
+                ..pulled_s.clone()
+            },
+            "0 to 10",
+        ),
+    ] {
+        let e = model
+            .generator(&labels, moving, bad)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("sampling.ease") && e.contains(says), "{e}");
+    }
     let closer = targets
         .iter()
         .filter(|&&(s, t, w)| {

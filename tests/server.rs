@@ -655,6 +655,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             draws: 0,
             pace: 0.0,
             jerk: 0.0,
+            ease: 0.0,
         }),
         exemplar: String::new(),
         candidates: 0,
@@ -1000,6 +1001,21 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             generate_refused(h, json!({"frames": 4, "sampling": bad}), &want).await;
         }
     }
+    // ease (the posture pull loosened in a clip slower than its seed): the
+    // same frames over both transports, the answer says it; without a pull
+    // or past 10 a 400 naming it.
+    let mut g = greq.clone();
+    let gs = g.sampling.as_mut().unwrap();
+    (gs.posture, gs.ease) = (1.5, 2.0);
+    let g = client.generate(g).await.unwrap().into_inner();
+    assert_eq!(g.sampling.as_ref().unwrap().ease, 2.0);
+    let sampling = json!({"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "posture": 1.5, "ease": 2.0});
+    let gr = g.output.unwrap().rotations;
+    let r = prompted_rest_matches(h, &b64, sampling, &gr, "ease").await;
+    assert_eq!(r["sampling"]["ease"], json!(2.0), "{}", r["sampling"]);
+    for bad in [json!({"posture": 0.0, "ease": 1.0}), json!({"ease": 11.0})] {
+        generate_refused(h, json!({"frames": 4, "sampling": bad}), "sampling.ease").await;
+    }
 
     // A request naming no max_jump, top_p or posture gets the model's
     // default for its labels' kinds (the bundled manifest: posture 1.5 and
@@ -1008,7 +1024,8 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     // the recommended 48; top_p 1 and posture 2 for AIST++'s genre, else
     // 0.95 and none), and the answer says which sampling ran.
     // Every kind also draws 4 candidate frames a frame (draws) with a
-    // price on jerk 1, unless the request names its draws.
+    // price on jerk 1, unless the request names its draws; a style's
+    // posture pull eases off in a slowing clip (ease 1).
     for (labels, sampling, (want, top_p, posture, draws)) in [
         (json!({"style": "angry"}), json!(null), (12, 1.0, 1.5, 4)),
         (json!({"content": "walk"}), json!(null), (24, 0.95, 2.0, 4)),
@@ -1060,6 +1077,14 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         // with one).
         let jerk = if draws > 1 { 1.0 } else { 0.0 };
         assert_eq!(s["jerk"].as_f64(), Some(jerk), "{labels}: {s}");
+        // The style's pull eases off in a slowing clip (ease 1), where
+        // there is a pull.
+        let ease = if labels.get("style").is_some() && posture > 0.0 {
+            1.0
+        } else {
+            0.0
+        };
+        assert_eq!(s["ease"].as_f64(), Some(ease), "{labels}: {s}");
         assert_eq!(
             (s["top_p"].as_f64(), s["posture"].as_f64()),
             (Some(top_p), Some(posture)),
@@ -1096,6 +1121,9 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         assert_eq!(s.draws, draws, "{kind}");
         let jerk = if draws > 1 { 1.0 } else { -1.0 };
         assert_eq!(s.jerk, jerk, "{kind}");
+        // The answer spells "none" as a request does (negative).
+        let ease = if kind == "style" { 1.0 } else { -1.0 };
+        assert_eq!(s.ease, ease, "{kind}");
     }
 
     // Streaming gives the one-shot frames, one message each.
@@ -1230,18 +1258,19 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .unwrap();
     for want in [
         // The prompt request, the top_p 0, keep_near, max_jump, posture,
-        // context, draws, pace and jerk ones, the nine per-kind defaults;
+        // context, draws, pace, jerk and ease ones, the nine per-kind defaults;
         // the 400s: the bad exemplar, the bad feet, keep_near 65, max_jump
         // 181, posture 11, context 201, draws 17, pace and jerk with one
-        // draw and at 101, the bad label and the over-long request; over
+        // draw and at 101, ease without a pull and at 11, the bad label and
+        // the over-long request; over
         // gRPC the prompt request, best of 3, steered, root model and feet,
         // feet pinned, exemplar none, top_p 0, keep_near 1, max_jump 2,
-        // posture 1.5, context 8, draws 2, pace 8, jerk 2, the style, content and genre
+        // posture 1.5, context 8, draws 2, pace 8, jerk 2, ease 2, the style, content and genre
         // defaults; a steered stream, a feet stream, a pinned stream, and a
         // stream asking for 2 candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 18",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 13",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 18",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 19",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 15",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 19",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 4",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",

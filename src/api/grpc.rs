@@ -89,6 +89,11 @@ impl Choreo for ChoreoGrpc {
                 } else {
                     r.sampling.jerk
                 },
+                ease: if r.sampling.ease == 0.0 {
+                    -1.0
+                } else {
+                    r.sampling.ease
+                },
             }),
         }))
     }

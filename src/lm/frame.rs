@@ -281,6 +281,10 @@ pub struct KindSampling {
     /// to choose among.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub jerk: Option<f64>,
+    /// How far the posture pull eases off in a slowing clip
+    /// (`sampling.ease`), where there is a pull.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ease: Option<f64>,
 }
 
 pub const FRAME_KIND: &str = "motion-frame-lm";
@@ -434,12 +438,16 @@ impl FrameManifest {
                     format!("{n} (want 1 to {most})"),
                 ));
             }
-            for (key, v) in [("pace", d.pace), ("jerk", d.jerk)] {
-                if let Some(a) = v.filter(|a| !(0.0..=100.0).contains(a)) {
+            for (key, v, most) in [
+                ("pace", d.pace, 100.0),
+                ("jerk", d.jerk, 100.0),
+                ("ease", d.ease, 10.0),
+            ] {
+                if let Some(a) = v.filter(|a| !(0.0..=most).contains(a)) {
                     return Err(super::LmError::invalid(
                         &name,
                         format!("{field}.{key}"),
-                        format!("{a} (want 0 to 100)"),
+                        format!("{a} (want 0 to {most})"),
                     ));
                 }
             }

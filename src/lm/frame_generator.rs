@@ -50,6 +50,9 @@ pub struct FrameGenerator {
     pull: Option<Arc<super::posture::Pull>>,
     /// The seed's pace held (`sampling.pace`), if any.
     pace: Option<super::pace::Pace>,
+    /// The running pace the posture pull eases by (`sampling.ease`): a
+    /// pull, a seed to measure against and a positive ease; else None.
+    ease: Option<super::pace::Pace>,
     pub produced: usize,
     /// Per class kind (the config's order), the class heads' logits summed
     /// over the frames produced so far: read from the unlabelled track
@@ -133,8 +136,14 @@ impl FrameGenerator {
         } else {
             None
         };
+        let ease = if sampling.ease > 0.0 && pull.is_some() {
+            super::pace::Pace::from_seed(1.0, &session.manifest.vocabulary, &c, &frames)
+        } else {
+            None
+        };
         let lbatch = batch_state(&session, &sampling)?;
         let mut g = FrameGenerator {
+            ease,
             session,
             tracks,
             lstate,
@@ -180,6 +189,7 @@ impl FrameGenerator {
             h: self.h.clone(),
             rng: StdRng::seed_from_u64(seed),
             pace: self.pace.clone(),
+            ease: self.ease.clone(),
             sampling: Sampling {
                 seed,
                 ..self.sampling.clone()
@@ -271,7 +281,14 @@ impl FrameGenerator {
         let p2 = self.last(2).map(|f| f.to_vec());
         let (vel, prev) = local_context(c, p1.as_deref(), p2.as_deref());
         let pull = self.pull.clone();
-        let pull = pull.as_deref().map(|p| p.for_frame(p1.as_deref()));
+        // The pull eases off while the clip is slower than its seed.
+        let scale = self
+            .ease
+            .as_ref()
+            .map_or(1.0, |e| e.turn_ratio().min(1.0).powf(self.sampling.ease));
+        let pull = pull
+            .as_deref()
+            .map(|p| p.for_frame(p1.as_deref(), scale as f32));
         // `sampling.draws` candidates; the one most typical of the model
         // is kept (greedy drawing makes the same frame every time).
         let n = if self.sampling.temperature == 0.0 {
@@ -323,6 +340,9 @@ impl FrameGenerator {
         });
         if let (Some(h), Some(ps)) = (self.pace.as_mut(), &paces) {
             h.push(ps[kept]);
+        }
+        if let (Some(e), Some(p)) = (self.ease.as_mut(), p1.as_deref()) {
+            e.push(super::pace::frame_pace(vocab, &c, p2.as_deref(), p, &frame));
         }
         // The global window: when full, keep the last half, whose cache
         // (`next`) was filled as those frames came; then feed the frame.
@@ -406,18 +426,42 @@ impl FrameGenerator {
         let mut frames = vec![Vec::with_capacity(c.slots + 1); n];
         let mut scores = vec![(0.0, 0.0); n];
         let (sampling, rng) = (&self.sampling, &mut self.rng);
+        // A slot's pull (offsets, and their exponentials for the escape),
+        // worked out once for every candidate where it does not depend on
+        // what each drew before it.
+        let offsets = |p: &super::posture::FramePull<'_>, s, frame: &[u32]| {
+            let u = p.slot(s, frame).into_owned();
+            let e = super::frame_draw::exp_offsets(&u);
+            (s, u, e)
+        };
+        let mut shared: Option<(usize, Vec<f32>, Vec<f64>)> = None;
         session.decode_rows(
             st,
             &self.h,
             (vel, prev, p1),
             &mut frames,
             |b, s, logits, frame| {
+                let own;
+                let u = match pull {
+                    Some(p) if forced[s].is_none() => {
+                        let here = if p.same_for_all(s) {
+                            if shared.as_ref().is_none_or(|x| x.0 != s) {
+                                shared = Some(offsets(p, s, frame));
+                            }
+                            shared.as_ref()
+                        } else {
+                            own = offsets(p, s, frame);
+                            Some(&own)
+                        };
+                        here.map(|(_, u, e)| (&u[..], &e[..]))
+                    }
+                    _ => None,
+                };
                 slot_token(
                     (sampling, &mut *rng, c),
                     (s, forced[s], p1),
                     logits,
-                    pull,
-                    frame,
+                    u,
                     score.then_some(&mut scores[b]),
                 )
             },
@@ -440,16 +484,16 @@ fn batch_state(session: &FrameSession, sampling: &Sampling) -> Result<Option<Ste
     }
 }
 
-/// Slot `s`'s token in a candidate frame (`frame`: its slots so far): the
-/// forced one (a joint prompt), else one drawn from the slot's change and
-/// absolute logits; with `score`, its surprise and the slot's entropy are
-/// added to it (forced slots count in neither).
+/// Slot `s`'s token in a candidate frame: the forced one (a joint
+/// prompt), else one drawn from the slot's change and absolute logits
+/// under the slot's `pull` (its offsets and their exponentials); with
+/// `score`, its surprise and the slot's entropy are added to it (forced
+/// slots count in neither).
 fn slot_token(
     (sampling, rng, c): (&Sampling, &mut StdRng, &FrameConfig),
     (s, forced, p1): (usize, Option<u32>, Option<&[u32]>),
     logits: (&[f32], &[f32]),
-    pull: Option<&super::posture::FramePull<'_>>,
-    frame: &[u32],
+    pull: Option<(&[f32], &[f64])>,
     score: Option<&mut (f64, f64)>,
 ) -> Result<u32, LmError> {
     match forced {
@@ -465,7 +509,7 @@ fn slot_token(
                 rng,
                 c,
                 logits,
-                pull.map(|p| p.slot(s, frame)).as_deref(),
+                pull,
                 p1.map(|p| p[s]),
                 c.wraps(s),
             );

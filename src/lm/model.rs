@@ -28,6 +28,7 @@ pub struct Named {
     pub draws: bool,
     pub pace: bool,
     pub jerk: bool,
+    pub ease: bool,
 }
 
 /// A loaded motion model of either kind: immutable, shared by requests.
@@ -130,6 +131,12 @@ impl MotionModel {
                 s.jerk = a;
             }
         }
+        // The ease loosens a pull: a default one only where there is one.
+        if let (false, Some(a)) = (named.ease, d.ease) {
+            if s.posture > 0.0 {
+                s.ease = a;
+            }
+        }
     }
 
     /// The `top_p`, `posture`, `draws`, `pace` and `jerk` defaults for a request asking for these
@@ -150,6 +157,7 @@ impl MotionModel {
                 out.draws = out.draws.or(d.draws);
                 out.pace = out.pace.or(d.pace);
                 out.jerk = out.jerk.or(d.jerk);
+                out.ease = out.ease.or(d.ease);
             }
         }
         out

@@ -142,6 +142,18 @@ impl Pace {
             * self.weight
     }
 
+    /// The running joint speed (legs and arms, the last frames) over the
+    /// target's, each with the floor added.
+    pub fn turn_ratio(&self) -> f64 {
+        if self.recent.is_empty() {
+            return 1.0;
+        }
+        let n = self.recent.len() as f64;
+        let now = self.recent.iter().map(|r| r[0] + r[1]).sum::<f64>() / n;
+        let floor = FLOOR[0] + FLOOR[1];
+        (now + floor) / (self.target[0] + self.target[1] + floor)
+    }
+
     /// Records the kept frame's pace.
     pub fn push(&mut self, p: [f64; PARTS]) {
         if self.recent.len() + 1 >= RECENT {
@@ -222,6 +234,22 @@ mod tests {
             slow.push(at(0.0));
         }
         assert!(slow.cost(at(legs * 2.0)) < slow.cost(at(0.0)));
+        // The running joint speed against the seed's (what sampling.ease
+        // eases the posture pull by): 1 at the seed's pace, (floor) over
+        // (seed + floor) when still, above 1 faster.
+        let mut r = p.clone();
+        for _ in 0..RECENT {
+            r.push(one);
+        }
+        assert!((r.turn_ratio() - 1.0).abs() < 1e-9);
+        let floor = FLOOR[0] + FLOOR[1];
+        let still = [0.0, 0.0, one[2], one[3]];
+        for _ in 0..RECENT {
+            r.push(still);
+        }
+        assert!((r.turn_ratio() - floor / (legs + arms + floor)).abs() < 1e-9);
+        r.push([2.0 * legs, 2.0 * arms, 0.0, 0.0]);
+        assert!(r.turn_ratio() > floor / (legs + arms + floor));
         // Weight 0, or a seed too short, makes no hold.
         assert!(Pace::from_seed(0.0, &v, &c, &seed).is_none());
         assert!(Pace::from_seed(1.0, &v, &c, &seed[..MIN_SEED + 1]).is_none());

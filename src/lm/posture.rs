@@ -397,7 +397,7 @@ impl Pull {
     /// For labels with pose clusters, each cluster's responsibility for
     /// the previous frame (its share times its Gaussian, normalised per
     /// label) is worked out here, once a frame, not once a slot.
-    pub fn for_frame<'a>(&'a self, prev: Option<&'a [u32]>) -> FramePull<'a> {
+    pub fn for_frame<'a>(&'a self, prev: Option<&'a [u32]>, scale: f32) -> FramePull<'a> {
         let resp = match prev {
             Some(p) => self
                 .mixtures
@@ -416,7 +416,7 @@ impl Pull {
                     let m = ll.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
                     let z: f64 = ll.iter().map(|l| (l - m).exp()).sum();
                     ll.iter()
-                        .map(|l| ((l - m).exp() / z * self.weight) as f32)
+                        .map(|l| ((l - m).exp() / z * self.weight) as f32 * scale)
                         .collect()
                 })
                 .collect(),
@@ -426,6 +426,7 @@ impl Pull {
             pull: self,
             prev,
             resp,
+            scale,
         }
     }
 }
@@ -438,9 +439,18 @@ pub struct FramePull<'a> {
     /// previous frame times the pull's weight (empty without a previous
     /// frame or clusters).
     resp: Vec<Vec<f32>>,
+    /// The whole pull's scale this frame (1: as the request set it).
+    scale: f32,
 }
 
 impl<'a> FramePull<'a> {
+    /// Whether slot `s`'s offsets are the same whatever this frame drew
+    /// before it (all but the root rotation's under tilt figures), so the
+    /// candidates of a frame can share them.
+    pub fn same_for_all(&self, s: usize) -> bool {
+        s >= 3 || self.pull.tilt.is_empty()
+    }
+
     /// Slot `s`'s offsets: for a joint slot (s ≥ 3) of a label with pose
     /// clusters and a previous frame, the clusters' offsets weighted by
     /// their responsibility for the previous frame, beside the other
@@ -452,7 +462,7 @@ impl<'a> FramePull<'a> {
     pub fn slot(&self, s: usize, drawn: &[u32]) -> Cow<'a, [f32]> {
         let pl: &'a Pull = self.pull;
         if s >= 3 && !self.resp.is_empty() {
-            let mut out = pl.plain[s].clone();
+            let mut out: Vec<f32> = pl.plain[s].iter().map(|x| x * self.scale).collect();
             for (mix, rs) in pl.mixtures.iter().zip(&self.resp) {
                 for ((_, off), &r) in mix.iter().zip(rs) {
                     for (o, x) in out.iter_mut().zip(&off[s]) {
@@ -463,7 +473,10 @@ impl<'a> FramePull<'a> {
             return Cow::Owned(out);
         }
         if s >= 3 || pl.tilt.is_empty() {
-            return Cow::Borrowed(&pl.offsets[s]);
+            if self.scale == 1.0 {
+                return Cow::Borrowed(&pl.offsets[s]);
+            }
+            return Cow::Owned(pl.offsets[s].iter().map(|x| x * self.scale).collect());
         }
         let mut aa = [0.0; 3];
         for (i, a) in aa.iter_mut().enumerate() {
@@ -487,7 +500,7 @@ impl<'a> FramePull<'a> {
                             -d * d / (2.0 * st.spread * st.spread)
                         })
                         .sum();
-                    pl.offsets[s][b] + (pl.weight * x) as f32
+                    (pl.offsets[s][b] + (pl.weight * x) as f32) * self.scale
                 })
                 .collect(),
         )

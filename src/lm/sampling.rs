@@ -69,6 +69,16 @@ pub struct Sampling {
     /// each joint's change, and this keeps the one that does not jitter
     /// (docs/RESULTS.md, "Session 40").
     pub jerk: f64,
+    /// Frame model only, with a posture pull: how far the pull eases off
+    /// while the clip moves slower than the motion it continues (a seed
+    /// motion or a style exemplar). Each frame the pull is scaled by
+    /// `min(1, r)^ease`, r the legs' and arms' joint speed over the last
+    /// 0.5 s against the seed's mean ([`super::pace::Pace::turn_ratio`]);
+    /// at or above the seed's pace the pull is whole. The pull damps every
+    /// swing, and a clip held by it slows second by second; eased, a slow
+    /// clip is left to the model, which holds its pace (docs/RESULTS.md,
+    /// "Session 42"). 0 = off; nothing to ease against without a seed.
+    pub ease: f64,
 }
 
 impl Default for Sampling {
@@ -86,6 +96,7 @@ impl Default for Sampling {
             draws: 1,
             pace: 0.0,
             jerk: 0.0,
+            ease: 0.0,
         }
     }
 }
@@ -116,6 +127,7 @@ pub const RECOMMENDED: Sampling = Sampling {
     draws: 1,
     pace: 0.0,
     jerk: 0.0,
+    ease: 0.0,
 };
 
 /// The most candidate frames `sampling.draws` may ask for.
@@ -192,6 +204,23 @@ impl Sampling {
                     ),
                 ));
             }
+        }
+        if !(self.ease.is_finite() && (0.0..=10.0).contains(&self.ease)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.ease",
+                format!("{} (want 0 to 10; 0 = off)", self.ease),
+            ));
+        }
+        if self.ease > 0.0 && self.posture == 0.0 {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.ease",
+                format!(
+                    "{} eases the posture pull, and there is none (sampling.posture is 0)",
+                    self.ease
+                ),
+            ));
         }
         if self.max_jump > 180 {
             return Err(LmError::invalid(

@@ -92,6 +92,7 @@ pub(super) fn named(s: &Option<pb::Sampling>) -> crate::service::generate::Named
         draws: s.draws != 0,
         pace: s.pace != 0.0,
         jerk: s.jerk != 0.0,
+        ease: s.ease != 0.0,
     }
 }
 
@@ -138,6 +139,12 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.jerk.max(0.0)
     };
+    // proto3 again: 0 = the model's default ease, negative = none.
+    let ease = if s.ease == 0.0 {
+        r.ease
+    } else {
+        s.ease.max(0.0)
+    };
     if !explicit(&s) {
         return crate::lm::Sampling {
             guidance,
@@ -147,6 +154,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
             draws,
             pace,
             jerk,
+            ease,
             ..r
         };
     }
@@ -163,6 +171,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         draws,
         pace,
         jerk,
+        ease,
     }
 }
 

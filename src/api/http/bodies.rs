@@ -213,6 +213,12 @@ pub struct SamplingJson {
     /// 0 = off); absent = the model's default for the label kinds asked
     /// for where `draws` leaves a choice, else off.
     pub jerk: Option<f64>,
+    /// How far the posture pull eases off while the clip moves slower
+    /// than the motion it continues (frame model, with a posture pull;
+    /// the pull times min(1, pace ratio)^ease; 0 = off); absent = the
+    /// model's default for the label kinds asked for where there is a
+    /// pull, else off.
+    pub ease: Option<f64>,
 }
 
 impl SamplingJson {
@@ -226,6 +232,7 @@ impl SamplingJson {
             draws: self.draws.is_some(),
             pace: self.pace.is_some(),
             jerk: self.jerk.is_some(),
+            ease: self.ease.is_some(),
         }
     }
 
@@ -247,6 +254,7 @@ impl SamplingJson {
                 draws: self.draws.unwrap_or(r.draws),
                 pace: self.pace.unwrap_or(r.pace),
                 jerk: self.jerk.unwrap_or(r.jerk),
+                ease: self.ease.unwrap_or(r.ease),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -262,6 +270,7 @@ impl SamplingJson {
                 draws: self.draws.unwrap_or(r.draws),
                 pace: self.pace.unwrap_or(r.pace),
                 jerk: self.jerk.unwrap_or(r.jerk),
+                ease: self.ease.unwrap_or(r.ease),
             },
         }
     }

@@ -102,22 +102,22 @@ fn pose_clusters_split_a_label_and_the_pull_follows_the_previous_frame() {
     let pull = p.pull(&labels, 1.0).unwrap();
     let mut prev = vec![0u32; slots];
     // Without a previous frame: the label's one mean pose (bin 40).
-    assert_eq!(peak(&pull.for_frame(None).slot(3, &[])), 40);
+    assert_eq!(peak(&pull.for_frame(None, 1.0).slot(3, &[])), 40);
     // A previous frame in either cluster: that cluster's pose.
     prev[3] = 12;
-    assert_eq!(peak(&pull.for_frame(Some(&prev)).slot(3, &[])), 10);
+    assert_eq!(peak(&pull.for_frame(Some(&prev), 1.0).slot(3, &[])), 10);
     prev[3] = 97;
-    assert_eq!(peak(&pull.for_frame(Some(&prev)).slot(3, &[])), 100);
+    assert_eq!(peak(&pull.for_frame(Some(&prev), 1.0).slot(3, &[])), 100);
     // Halfway, both clusters pull: the peak lies between them.
     prev[3] = 55;
-    let mid = peak(&pull.for_frame(Some(&prev)).slot(3, &[]));
+    let mid = peak(&pull.for_frame(Some(&prev), 1.0).slot(3, &[]));
     assert!((10..=100).contains(&mid), "{mid}");
     // The weight scales the offsets.
     let pull2 = p.pull(&labels, 2.0).unwrap();
     prev[3] = 12;
     let (a, b) = (
-        pull.for_frame(Some(&prev)).slot(3, &[]),
-        pull2.for_frame(Some(&prev)).slot(3, &[]),
+        pull.for_frame(Some(&prev), 1.0).slot(3, &[]),
+        pull2.for_frame(Some(&prev), 1.0).slot(3, &[]),
     );
     assert!(
         (b[200] - 2.0 * a[200]).abs() < 1e-3 * a[200].abs(),
@@ -139,18 +139,31 @@ fn pose_clusters_split_a_label_and_the_pull_follows_the_previous_frame() {
         .into_iter()
         .collect();
     let pw = p.pull(&wave, 1.0).unwrap();
-    assert_eq!(peak(&pw.for_frame(Some(&prev)).slot(4, &[])), 200);
+    assert_eq!(peak(&pw.for_frame(Some(&prev), 1.0).slot(4, &[])), 200);
     for s in [3, 4] {
         let (b, w, h) = (
-            pb.for_frame(Some(&prev)).slot(s, &[]),
-            pw.for_frame(Some(&prev)).slot(s, &[]),
-            pull.for_frame(Some(&prev)).slot(s, &[]),
+            pb.for_frame(Some(&prev), 1.0).slot(s, &[]),
+            pw.for_frame(Some(&prev), 1.0).slot(s, &[]),
+            pull.for_frame(Some(&prev), 1.0).slot(s, &[]),
         );
         for i in 0..360 {
             assert!((b[i] - (w[i] + h[i])).abs() < 1e-4, "slot {s} bin {i}");
         }
     }
-    assert_eq!(peak(&pb.for_frame(Some(&prev)).slot(3, &[])), 10);
+    assert_eq!(peak(&pb.for_frame(Some(&prev), 1.0).slot(3, &[])), 10);
+    // A frame's scale (sampling.ease) scales every slot's offsets: the
+    // clustered and the unclustered labels', with a previous frame or not.
+    for prev in [None, Some(&prev[..])] {
+        for s in [3, 4] {
+            let (whole, half) = (
+                pb.for_frame(prev, 1.0).slot(s, &[]),
+                pb.for_frame(prev, 0.5).slot(s, &[]),
+            );
+            for i in 0..360 {
+                assert!((half[i] - 0.5 * whole[i]).abs() < 1e-4, "slot {s} bin {i}");
+            }
+        }
+    }
 }
 
 #[test]
