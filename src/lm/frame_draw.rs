@@ -18,7 +18,7 @@ pub(super) fn draw(
     rng: &mut StdRng,
     c: &FrameConfig,
     (rel, abs): (&[f32], &[f32]),
-    pull: Option<(&[f32], &[f64])>,
+    pull: Option<&[f32]>,
     p1: Option<u32>,
     wraps: bool,
 ) -> u32 {
@@ -27,7 +27,7 @@ pub(super) fn draw(
     // change that reaches the bin.
     let abs_pulled = || -> Vec<f32> {
         match pull {
-            Some((u, _)) => abs.iter().zip(u).map(|(a, b)| a + b).collect(),
+            Some(u) => abs.iter().zip(u).map(|(a, b)| a + b).collect(),
             None => abs.to_vec(),
         }
     };
@@ -48,7 +48,7 @@ pub(super) fn draw(
     let outside = |b: i64| (b - p as i64).abs() > r0 && reach(b);
     let moved;
     let rel = match pull {
-        Some((u, eu)) => {
+        Some(u) => {
             let mut r = rel.to_vec();
             for (i, x) in r[..=2 * r0 as usize].iter_mut().enumerate() {
                 *x += u[(p as i64 + i as i64 - r0).clamp(0, bins - 1) as usize];
@@ -59,7 +59,7 @@ pub(super) fn draw(
             // distribution over bins. Left unpulled, a slot away from its
             // posture, whose every change the pull lowers, escaped more
             // often and jumped (docs/RESULTS.md, "Session 40").
-            r[c.esc() as usize] += escape_pull(abs, eu, outside);
+            r[c.esc() as usize] += escape_pull(abs, u, outside);
             moved = r;
             &moved[..]
         }
@@ -98,17 +98,10 @@ pub(super) fn draw(
     sampling.draw(&masked, rng) as u32
 }
 
-/// A slot's pull offsets exponentiated (e^{u(b)}, what [`escape_pull`]
-/// weighs by): once a slot, shared by the candidates drawing it.
-pub(super) fn exp_offsets(u: &[f32]) -> Vec<f64> {
-    u.iter().map(|&o| (o as f64).exp()).collect()
-}
-
 /// The pull's offset to the escape class: ln Σ q(b) e^{u(b)} over the bins
 /// an escape may land on (`outside`), q the absolute head's distribution
-/// over them (0 when there are none); `eu` the offsets exponentiated
-/// ([`exp_offsets`]).
-fn escape_pull(abs: &[f32], eu: &[f64], outside: impl Fn(i64) -> bool) -> f32 {
+/// over them (0 when there are none).
+fn escape_pull(abs: &[f32], u: &[f32], outside: impl Fn(i64) -> bool) -> f32 {
     let m = abs
         .iter()
         .enumerate()
@@ -118,11 +111,11 @@ fn escape_pull(abs: &[f32], eu: &[f64], outside: impl Fn(i64) -> bool) -> f32 {
         return 0.0;
     }
     let (mut z, mut zu) = (0.0f64, 0.0f64);
-    for (b, (&x, &e)) in abs.iter().zip(eu).enumerate() {
+    for (b, (&x, &o)) in abs.iter().zip(u).enumerate() {
         if outside(b as i64) {
             let q = ((x - m) as f64).exp();
             z += q;
-            zu += q * e;
+            zu += q * (o as f64).exp();
         }
     }
     if zu > 0.0 {
@@ -210,7 +203,7 @@ mod tests {
                 &mut rng,
                 &c,
                 (&rel, &abs),
-                Some((&u, &exp_offsets(&u))),
+                Some(&u),
                 Some(100),
                 true,
             ) {
@@ -224,9 +217,7 @@ mod tests {
         // the bins it may land on.
         let outside = |b: i64| (b - 100).abs() > c.radius as i64;
         let half = vec![0.5f32.ln(); c.bins];
-        let half = exp_offsets(&half);
         assert!((escape_pull(&abs, &half, outside) - 0.5f32.ln()).abs() < 1e-6);
-        let u = exp_offsets(&u);
         let one = escape_pull(&abs, &u, outside);
         let want = (1.0f64 / (c.bins - 2 * c.radius - 1) as f64).ln() as f32;
         assert!((one - want).abs() < 1e-4, "{one} against {want}");

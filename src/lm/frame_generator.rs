@@ -426,42 +426,18 @@ impl FrameGenerator {
         let mut frames = vec![Vec::with_capacity(c.slots + 1); n];
         let mut scores = vec![(0.0, 0.0); n];
         let (sampling, rng) = (&self.sampling, &mut self.rng);
-        // A slot's pull (offsets, and their exponentials for the escape),
-        // worked out once for every candidate where it does not depend on
-        // what each drew before it.
-        let offsets = |p: &super::posture::FramePull<'_>, s, frame: &[u32]| {
-            let u = p.slot(s, frame).into_owned();
-            let e = super::frame_draw::exp_offsets(&u);
-            (s, u, e)
-        };
-        let mut shared: Option<(usize, Vec<f32>, Vec<f64>)> = None;
         session.decode_rows(
             st,
             &self.h,
             (vel, prev, p1),
             &mut frames,
             |b, s, logits, frame| {
-                let own;
-                let u = match pull {
-                    Some(p) if forced[s].is_none() => {
-                        let here = if p.same_for_all(s) {
-                            if shared.as_ref().is_none_or(|x| x.0 != s) {
-                                shared = Some(offsets(p, s, frame));
-                            }
-                            shared.as_ref()
-                        } else {
-                            own = offsets(p, s, frame);
-                            Some(&own)
-                        };
-                        here.map(|(_, u, e)| (&u[..], &e[..]))
-                    }
-                    _ => None,
-                };
                 slot_token(
                     (sampling, &mut *rng, c),
                     (s, forced[s], p1),
                     logits,
-                    u,
+                    pull,
+                    frame,
                     score.then_some(&mut scores[b]),
                 )
             },
@@ -484,16 +460,16 @@ fn batch_state(session: &FrameSession, sampling: &Sampling) -> Result<Option<Ste
     }
 }
 
-/// Slot `s`'s token in a candidate frame: the forced one (a joint
-/// prompt), else one drawn from the slot's change and absolute logits
-/// under the slot's `pull` (its offsets and their exponentials); with
-/// `score`, its surprise and the slot's entropy are added to it (forced
-/// slots count in neither).
+/// Slot `s`'s token in a candidate frame (`frame`: its slots so far): the
+/// forced one (a joint prompt), else one drawn from the slot's change and
+/// absolute logits; with `score`, its surprise and the slot's entropy are
+/// added to it (forced slots count in neither).
 fn slot_token(
     (sampling, rng, c): (&Sampling, &mut StdRng, &FrameConfig),
     (s, forced, p1): (usize, Option<u32>, Option<&[u32]>),
     logits: (&[f32], &[f32]),
-    pull: Option<(&[f32], &[f64])>,
+    pull: Option<&super::posture::FramePull<'_>>,
+    frame: &[u32],
     score: Option<&mut (f64, f64)>,
 ) -> Result<u32, LmError> {
     match forced {
@@ -509,7 +485,7 @@ fn slot_token(
                 rng,
                 c,
                 logits,
-                pull,
+                pull.map(|p| p.slot(s, frame)).as_deref(),
                 p1.map(|p| p[s]),
                 c.wraps(s),
             );

@@ -444,13 +444,6 @@ pub struct FramePull<'a> {
 }
 
 impl<'a> FramePull<'a> {
-    /// Whether slot `s`'s offsets are the same whatever this frame drew
-    /// before it (all but the root rotation's under tilt figures), so the
-    /// candidates of a frame can share them.
-    pub fn same_for_all(&self, s: usize) -> bool {
-        s >= 3 || self.pull.tilt.is_empty()
-    }
-
     /// Slot `s`'s offsets: for a joint slot (s ≥ 3) of a label with pose
     /// clusters and a previous frame, the clusters' offsets weighted by
     /// their responsibility for the previous frame, beside the other
