@@ -50,11 +50,12 @@ $C bench model --model "$run/flat/export" --frames 200 > "$run/flat.bench.json"
 # 5. Generation, both models side by side (single-threaded each, so two at
 #    once): the flat GPT at t 1, top-p 0.95 with and without its exemplar
 #    (its sampler has no keep_near, max_jump or posture); the frame model
-#    with exemplars at the API's default for each corpus's label before
-#    the pull and with the bundled model's defaults (Bandai style: clustered
-#    posture 1.5, max_jump 12; AIST++ genre: posture 2, top-p 1, max_jump
-#    48). Every row of both models is also measured with the root from the
-#    feet (Bandai; the AIST++ root stays in place) and the feet pinned.
+#    with exemplars at the bundled model's per-kind defaults (Bandai
+#    style: top-p 1, max_jump 12, clustered posture 1.5, 4 candidates, jerk
+#    price 1, the pull eased in a slowing clip (ease 1); AIST++ genre:
+#    top-p 1, max_jump 48, posture 2, 4 candidates, jerk price 1). Every
+#    row of both models is also measured with the root from the feet
+#    (Bandai; the AIST++ root stays in place) and the feet pinned.
 per=${GEN_PER_LABEL:-6}
 $C eval generate --model "$run/flat/export" --data "$data/bandai" --labels style --per-label "$per" \
     --sampling 1:0:0.95 --exemplar both --root both --feet both --json > "$run/flat.gen.bandai.json" &
@@ -62,8 +63,8 @@ $C eval generate --model "$run/flat/export" --data "$data/aistpp-vrm/motions" --
     --sampling 1:0:0.95 --exemplar both --feet both --json > "$run/flat.gen.vrm.json" &
 wait
 $C eval generate --model "$run/frame/export" --data "$data/bandai" --labels style --per-label "$per" \
-    --sampling 1:0:0.95:1:2:24,1:0:0.95:1:2:12:1.5 --exemplar auto --root both --feet both --json > "$run/frame.gen.bandai.json" &
+    --sampling 1:0:1:1:2:12:1.5:0:4:0:1:1 --exemplar auto --root both --feet both --json > "$run/frame.gen.bandai.json" &
 $C eval generate --model "$run/frame/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" \
-    --sampling 1:0:0.95:1:2:48,1:0:1:1:2:48:2 --exemplar auto --feet both --json > "$run/frame.gen.vrm.json" &
+    --sampling 1:0:1:1:2:48:2:0:4:0:1 --exemplar auto --feet both --json > "$run/frame.gen.vrm.json" &
 wait
 echo "tables in $run"
