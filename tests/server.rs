@@ -1024,8 +1024,8 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     // the recommended 48; top_p 1 and posture 2 for AIST++'s genre, else
     // 0.95 and none), and the answer says which sampling ran.
     // Every kind also draws 4 candidate frames a frame (draws) with a
-    // price on jerk 1, unless the request names its draws; a style's
-    // posture pull eases off in a slowing clip (ease 1).
+    // price on jerk 1, unless the request names its draws; a style's or a
+    // genre's posture pull eases off in a slowing clip (ease 1).
     for (labels, sampling, (want, top_p, posture, draws)) in [
         (json!({"style": "angry"}), json!(null), (12, 1.0, 1.5, 4)),
         (json!({"content": "walk"}), json!(null), (24, 0.95, 2.0, 4)),
@@ -1077,13 +1077,10 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         // with one).
         let jerk = if draws > 1 { 1.0 } else { 0.0 };
         assert_eq!(s["jerk"].as_f64(), Some(jerk), "{labels}: {s}");
-        // The style's pull eases off in a slowing clip (ease 1), where
-        // there is a pull.
-        let ease = if labels.get("style").is_some() && posture > 0.0 {
-            1.0
-        } else {
-            0.0
-        };
+        // The style's and the genre's pull eases off in a slowing clip
+        // (ease 1), where there is a pull.
+        let eased = labels.get("style").is_some() || labels.get("genre").is_some();
+        let ease = if eased && posture > 0.0 { 1.0 } else { 0.0 };
         assert_eq!(s["ease"].as_f64(), Some(ease), "{labels}: {s}");
         assert_eq!(
             (s["top_p"].as_f64(), s["posture"].as_f64()),
@@ -1122,7 +1119,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         let jerk = if draws > 1 { 1.0 } else { -1.0 };
         assert_eq!(s.jerk, jerk, "{kind}");
         // The answer spells "none" as a request does (negative).
-        let ease = if kind == "style" { 1.0 } else { -1.0 };
+        let ease = if kind == "content" { -1.0 } else { 1.0 };
         assert_eq!(s.ease, ease, "{kind}");
     }
 
