@@ -1021,14 +1021,15 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     // default for its labels' kinds (the bundled manifest: posture 1.5 and
     // max_jump 12 for Bandai's style, posture 2 and max_jump 24 for its
     // content, the smaller cap for both and the first kind's posture, else
-    // the recommended 48; top_p 1 and posture 2 for AIST++'s genre, else
-    // 0.95 and none), and the answer says which sampling ran.
+    // the recommended 48; top_p 1 and posture 2 for AIST++'s genre; top_p 1
+    // for every kind, else 0.95; posture none without a kind), and the
+    // answer says which sampling ran.
     // Every kind also draws 4 candidate frames a frame (draws) with a
-    // price on jerk 1, unless the request names its draws; a style's or a
-    // genre's posture pull eases off in a slowing clip (ease 1).
+    // price on jerk 1, unless the request names its draws; every kind's
+    // posture pull eases off in a slowing clip (ease 1).
     for (labels, sampling, (want, top_p, posture, draws)) in [
         (json!({"style": "angry"}), json!(null), (12, 1.0, 1.5, 4)),
-        (json!({"content": "walk"}), json!(null), (24, 0.95, 2.0, 4)),
+        (json!({"content": "walk"}), json!(null), (24, 1.0, 2.0, 4)),
         (
             json!({"content": "walk", "style": "angry"}),
             json!(null),
@@ -1077,10 +1078,9 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         // with one).
         let jerk = if draws > 1 { 1.0 } else { 0.0 };
         assert_eq!(s["jerk"].as_f64(), Some(jerk), "{labels}: {s}");
-        // The style's and the genre's pull eases off in a slowing clip
-        // (ease 1), where there is a pull.
-        let eased = labels.get("style").is_some() || labels.get("genre").is_some();
-        let ease = if eased && posture > 0.0 { 1.0 } else { 0.0 };
+        // Every kind's pull eases off in a slowing clip (ease 1), where
+        // there is a pull.
+        let ease = if posture > 0.0 { 1.0 } else { 0.0 };
         assert_eq!(s["ease"].as_f64(), Some(ease), "{labels}: {s}");
         assert_eq!(
             (s["top_p"].as_f64(), s["posture"].as_f64()),
@@ -1095,10 +1095,10 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     }
     // Over gRPC, a request with no sampling: Bandai's style gets max_jump
     // 12 and posture 1.5, its content max_jump 24 and posture 2, AIST++'s
-    // genre max_jump 48, top_p 1 and posture 2.
+    // genre max_jump 48 and posture 2; top_p 1 for all three.
     for (kind, value, want, draws) in [
         ("style", "angry", (12, 1.0, 1.5), 4),
-        ("content", "walk", (24, 0.95, 2.0), 4),
+        ("content", "walk", (24, 1.0, 2.0), 4),
         ("genre", "BR", (48, 1.0, 2.0), 4),
     ] {
         let g = client
@@ -1119,8 +1119,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         let jerk = if draws > 1 { 1.0 } else { -1.0 };
         assert_eq!(s.jerk, jerk, "{kind}");
         // The answer spells "none" as a request does (negative).
-        let ease = if kind == "content" { -1.0 } else { 1.0 };
-        assert_eq!(s.ease, ease, "{kind}");
+        assert_eq!(s.ease, 1.0, "{kind}");
     }
 
     // Streaming gives the one-shot frames, one message each.
