@@ -136,6 +136,8 @@ impl FrameGenerator {
         } else {
             None
         };
+        // The ease reads only the tracker's running pace (`turn_ratio`),
+        // never its cost, so the weight is a placeholder.
         let ease = if sampling.ease > 0.0 && pull.is_some() {
             super::pace::Pace::from_seed(1.0, &session.manifest.vocabulary, &c, &frames)
         } else {
@@ -341,8 +343,13 @@ impl FrameGenerator {
         if let (Some(h), Some(ps)) = (self.pace.as_mut(), &paces) {
             h.push(ps[kept]);
         }
+        // The ease's tracker records it too (the hold measured it already,
+        // where there is one).
         if let (Some(e), Some(p)) = (self.ease.as_mut(), p1.as_deref()) {
-            e.push(super::pace::frame_pace(vocab, &c, p2.as_deref(), p, &frame));
+            e.push(match &paces {
+                Some(ps) => ps[kept],
+                None => super::pace::frame_pace(vocab, &c, p2.as_deref(), p, &frame),
+            });
         }
         // The global window: when full, keep the last half, whose cache
         // (`next`) was filled as those frames came; then feed the frame.
