@@ -270,6 +270,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         pace: 0.0,
         jerk: 0.0,
         ease: 0.0,
+        matching: 0.0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;
@@ -627,6 +628,85 @@ fn posture_pulls_the_joints_toward_the_labels_posture() {
             .to_string();
         assert!(e.contains("sampling.ease") && e.contains(says), "{e}");
     }
+    // sampling.matching: the joints follow the labels' real takes. Without
+    // exemplars.json, without labels, or past 10: refused, naming it.
+    let matching_s = Sampling {
+        matching: 3.0,
+        ..pulled_s.clone()
+    };
+    let refused = |m: &MotionModel, l: &Labels, s: &Sampling, says: &str| {
+        let e = m.generator(l, moving, s.clone()).err().unwrap().to_string();
+        assert!(e.contains("sampling.matching") && e.contains(says), "{e}");
+    };
+    refused(&model, &labels, &matching_s, "no exemplars.json");
+    let ex = choreo::lm::exemplars::Exemplars::build(
+        &[("happy".into(), happy.labels.clone(), toks.clone())],
+        &v,
+        &["style".to_string()],
+        5.0,
+        1,
+        None,
+        choreo::lm::exemplars::SpanChoice::default(),
+    )
+    .unwrap();
+    ex.save(dir.path()).unwrap();
+    let model = MotionModel::load(dir.path()).unwrap();
+    refused(&model, &Labels::new(), &matching_s, "asks for none");
+    let mut sad = Labels::new();
+    sad.insert("style".into(), "sad".into());
+    refused(&model, &sad, &matching_s, "no exemplar span");
+    refused(
+        &model,
+        &labels,
+        &Sampling {
+            matching: 11.0,
+            ..matching_s.clone()
+        },
+        "0 to 10",
+    );
+    let go_on = |seed: &[u32], s: &Sampling| -> Vec<u32> {
+        let mut g = model.generator(&labels, seed, s.clone()).unwrap();
+        (0..n)
+            .flat_map(|_| g.next_frame(&vec![None; fl]).unwrap())
+            .collect()
+    };
+    let matched = go_on(moving, &matching_s);
+    assert_eq!(matched, go_on(moving, &matching_s), "one seed, one clip");
+    // Its frames lie nearer the library's real frames (joint angles and
+    // the root's height) than the pulled clip's do.
+    let library: Vec<Vec<u32>> = ex
+        .spans()
+        .flat_map(|(_, t)| t.chunks_exact(fl).map(|f| f.to_vec()).collect::<Vec<_>>())
+        .collect();
+    let slots = fl - 1;
+    let off_library = |clip: &[u32]| -> f64 {
+        let frames: Vec<&[u32]> = clip.chunks_exact(fl).collect();
+        let near = |f: &[u32]| -> f64 {
+            library
+                .iter()
+                .map(|x| {
+                    (0..slots)
+                        .filter(|&s| choreo::lm::matching::followed(s, slots))
+                        .map(|s| {
+                            let d = (f[s] as f64 - x[s] as f64).abs();
+                            let d = if s + 1 < slots { d.min(bins - d) } else { d };
+                            d * d
+                        })
+                        .sum::<f64>()
+                })
+                .fold(f64::INFINITY, f64::min)
+                .sqrt()
+        };
+        frames.iter().map(|f| near(f)).sum::<f64>() / frames.len() as f64
+    };
+    let (followed, pulled_only) = (
+        off_library(&matched),
+        off_library(&go_on(moving, &pulled_s)),
+    );
+    assert!(
+        followed < pulled_only,
+        "matched clip {followed:.1} bins from the library, pulled {pulled_only:.1}"
+    );
     let closer = targets
         .iter()
         .filter(|&&(s, t, w)| {

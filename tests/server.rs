@@ -656,6 +656,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             pace: 0.0,
             jerk: 0.0,
             ease: 0.0,
+            matching: 0.0,
         }),
         exemplar: String::new(),
         candidates: 0,
@@ -1016,6 +1017,26 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     for bad in [json!({"posture": 0.0, "ease": 1.0}), json!({"ease": 11.0})] {
         generate_refused(h, json!({"frames": 4, "sampling": bad}), "sampling.ease").await;
     }
+    // matching (the joints follow the labels' real takes, the bundled
+    // exemplars of genre BR): the same frames over both transports, the
+    // answer says it; without labels or past 10 a 400 naming it.
+    let mut g = greq.clone();
+    g.sampling.as_mut().unwrap().matching = 1.0;
+    let g = client.generate(g).await.unwrap().into_inner();
+    assert_eq!(g.sampling.as_ref().unwrap().matching, 1.0);
+    let sampling =
+        json!({"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7, "matching": 1.0});
+    let gr = g.output.unwrap().rotations;
+    let r = prompted_rest_matches(h, &b64, sampling, &gr, "matching").await;
+    assert_eq!(r["sampling"]["matching"], json!(1.0), "{}", r["sampling"]);
+    for bad in [json!({"matching": 1.0}), json!({"matching": 11.0})] {
+        generate_refused(
+            h,
+            json!({"frames": 4, "sampling": bad}),
+            "sampling.matching",
+        )
+        .await;
+    }
 
     // A request naming no max_jump, top_p or posture gets the model's
     // default for its labels' kinds (the bundled manifest: posture 1.5 and
@@ -1254,19 +1275,20 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .unwrap();
     for want in [
         // The prompt request, the top_p 0, keep_near, max_jump, posture,
-        // context, draws, pace, jerk and ease ones, the nine per-kind defaults;
+        // context, draws, pace, jerk, ease and matching ones, the nine per-kind defaults;
         // the 400s: the bad exemplar, the bad feet, keep_near 65, max_jump
         // 181, posture 11, context 201, draws 17, pace and jerk with one
-        // draw and at 101, ease without a pull and at 11, the bad label and
+        // draw and at 101, ease without a pull and at 11, matching without
+        // labels and at 11, the bad label and
         // the over-long request; over
         // gRPC the prompt request, best of 3, steered, root model and feet,
         // feet pinned, exemplar none, top_p 0, keep_near 1, max_jump 2,
-        // posture 1.5, context 8, draws 2, pace 8, jerk 2, ease 2, the style, content and genre
+        // posture 1.5, context 8, draws 2, pace 8, jerk 2, ease 2, matching 1, the style, content and genre
         // defaults; a steered stream, a feet stream, a pinned stream, and a
         // stream asking for 2 candidates refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 19",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 15",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 19",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 20",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 17",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 20",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 4",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",

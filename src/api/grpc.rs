@@ -94,6 +94,11 @@ impl Choreo for ChoreoGrpc {
                 } else {
                     r.sampling.ease
                 },
+                matching: if r.sampling.matching == 0.0 {
+                    -1.0
+                } else {
+                    r.sampling.matching
+                },
             }),
         }))
     }

@@ -100,6 +100,7 @@ pub fn sampling_name(s: &Sampling) -> String {
         ("pace", s.pace, 0.0),
         ("jerk", s.jerk, 0.0),
         ("ease", s.ease, 0.0),
+        ("matching", s.matching, 0.0),
     ];
     let mut name = format!("t={} top_k={} top_p={}", s.temperature, s.top_k, s.top_p);
     for (field, value, off) in extras {

@@ -158,6 +158,13 @@ impl Exemplars {
         self.items.len()
     }
 
+    /// Every span with its decoded tokens.
+    pub fn spans(&self) -> impl Iterator<Item = (&Exemplar, &[u32])> {
+        self.items
+            .iter()
+            .zip(self.decoded.iter().map(|t| t.as_slice()))
+    }
+
     /// Keeps `old`'s spans for the label kinds this set was not built for,
     /// so that rewriting one kind's exemplars (`choreo exemplars --kind
     /// style`) leaves the other kinds' as they were: a span of `old` keeps

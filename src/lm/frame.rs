@@ -285,6 +285,10 @@ pub struct KindSampling {
     /// (`sampling.ease`), where there is a pull.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ease: Option<f64>,
+    /// How strongly the joints follow the labels' real takes
+    /// (`sampling.matching`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub matching: Option<f64>,
 }
 
 pub const FRAME_KIND: &str = "motion-frame-lm";
@@ -442,6 +446,7 @@ impl FrameManifest {
                 ("pace", d.pace, 100.0),
                 ("jerk", d.jerk, 100.0),
                 ("ease", d.ease, 10.0),
+                ("matching", d.matching, 10.0),
             ] {
                 if let Some(a) = v.filter(|a| !(0.0..=most).contains(a)) {
                     return Err(super::LmError::invalid(

@@ -53,6 +53,9 @@ pub struct FrameGenerator {
     /// The running pace the posture pull eases by (`sampling.ease`): a
     /// pull, a seed to measure against and a positive ease; else None.
     ease: Option<super::pace::Pace>,
+    /// The asked-for labels' real frames the joints follow
+    /// (`sampling.matching`), if any.
+    library: Option<Arc<super::matching::Library>>,
     pub produced: usize,
     /// Per class kind (the config's order), the class heads' logits summed
     /// over the frames produced so far: read from the unlabelled track
@@ -143,8 +146,14 @@ impl FrameGenerator {
         } else {
             None
         };
+        let library = if sampling.matching > 0.0 {
+            Some(Arc::new(library_for(&session, labels)?))
+        } else {
+            None
+        };
         let lbatch = batch_state(&session, &sampling)?;
         let mut g = FrameGenerator {
+            library,
             ease,
             session,
             tracks,
@@ -192,6 +201,7 @@ impl FrameGenerator {
             rng: StdRng::seed_from_u64(seed),
             pace: self.pace.clone(),
             ease: self.ease.clone(),
+            library: self.library.clone(),
             sampling: Sampling {
                 seed,
                 ..self.sampling.clone()
@@ -298,15 +308,37 @@ impl FrameGenerator {
         } else {
             self.sampling.draws.max(1)
         };
+        // Motion matching's target for this frame (it needs a frame before).
+        let library = self.library.clone();
+        let target = library
+            .as_deref()
+            .zip(p1.as_deref())
+            .map(|(l, p)| l.target(p, p2.as_deref()));
+        let follow = library
+            .as_deref()
+            .zip(target.as_deref())
+            .map(|(l, t)| (l, t, self.sampling.matching));
         let ctx = (&vel[..], &prev[..], p1.as_deref());
         let cands = if n > 1 && self.lbatch.is_some() {
-            self.draw_frames(&session, forced, ctx, pull.as_ref(), (n as usize, true))?
+            self.draw_frames(
+                &session,
+                forced,
+                ctx,
+                (pull.as_ref(), follow),
+                (n as usize, true),
+            )?
         } else {
             let mut cands = Vec::with_capacity(n as usize);
             for _ in 0..n {
                 // A graph without the batch dimension: one at a time.
                 let one = (1, n > 1);
-                cands.extend(self.draw_frames(&session, forced, ctx, pull.as_ref(), one)?);
+                cands.extend(self.draw_frames(
+                    &session,
+                    forced,
+                    ctx,
+                    (pull.as_ref(), follow),
+                    one,
+                )?);
             }
             cands
         };
@@ -422,7 +454,7 @@ impl FrameGenerator {
         session: &FrameSession,
         forced: &[Option<u32>],
         (vel, prev, p1): (&[u32], &[u32], Option<&[u32]>),
-        pull: Option<&super::posture::FramePull<'_>>,
+        (pull, follow): (Option<&super::posture::FramePull<'_>>, Follow<'_>),
         (n, score): (usize, bool),
     ) -> Result<Vec<(Vec<u32>, f64, f64)>, LmError> {
         let c = session.config();
@@ -443,7 +475,7 @@ impl FrameGenerator {
                     (sampling, &mut *rng, c),
                     (s, forced[s], p1),
                     logits,
-                    pull,
+                    (pull, follow),
                     frame,
                     score.then_some(&mut scores[b]),
                 )
@@ -475,7 +507,7 @@ fn slot_token(
     (sampling, rng, c): (&Sampling, &mut StdRng, &FrameConfig),
     (s, forced, p1): (usize, Option<u32>, Option<&[u32]>),
     logits: (&[f32], &[f32]),
-    pull: Option<&super::posture::FramePull<'_>>,
+    (pull, follow): (Option<&super::posture::FramePull<'_>>, Follow<'_>),
     frame: &[u32],
     score: Option<&mut (f64, f64)>,
 ) -> Result<u32, LmError> {
@@ -487,12 +519,19 @@ fn slot_token(
             format!("token {t} is not a value token"),
         )),
         None => {
+            // A followed slot (motion matching) is pulled toward its target
+            // only; the postures keep the rest (the root's tilt).
+            let matched = follow.and_then(|(l, t, w)| l.offsets(t, s, w));
+            let offsets = match matched {
+                Some(m) => Some(std::borrow::Cow::Owned(m)),
+                None => pull.map(|p| p.slot(s, frame)),
+            };
             let t = super::frame_draw::draw(
                 sampling,
                 rng,
                 c,
                 logits,
-                pull.map(|p| p.slot(s, frame)).as_deref(),
+                offsets.as_deref(),
                 p1.map(|p| p[s]),
                 c.wraps(s),
             );
@@ -504,6 +543,32 @@ fn slot_token(
             Ok(t)
         }
     }
+}
+
+/// Motion matching for one frame: the library, the frame's target and
+/// the weight (`sampling.matching`).
+type Follow<'a> = Option<(&'a super::matching::Library, &'a [u32], f64)>;
+
+/// The real frames `sampling.matching` follows for `labels`: the session's
+/// exemplar spans carrying every one of them; a 400 naming the field
+/// without labels, without exemplars or without such a span.
+fn library_for(
+    session: &FrameSession,
+    labels: &Labels,
+) -> Result<super::matching::Library, LmError> {
+    let bad = |why: &str| LmError::invalid("request", "sampling.matching", why);
+    if labels.is_empty() {
+        return Err(bad(
+            "follows the real takes of the asked-for labels, and the request asks for none",
+        ));
+    }
+    let ex = session.exemplars.as_ref().ok_or_else(|| {
+        bad("this model has no exemplars.json to follow (choreo exemplars writes one)")
+    })?;
+    let c = session.config();
+    super::matching::Library::for_labels(ex, labels, c.slots, c.bins).ok_or_else(|| {
+        bad("no exemplar span of this model carries every asked-for label (choreo exemplars writes them)")
+    })
 }
 
 /// The frames the global window holds: `sampling.context` (never more

@@ -20,6 +20,9 @@ pub struct FrameSession {
     pub manifest: FrameManifest,
     /// The folder's label postures (`postures.json`), if any.
     pub postures: Option<super::posture::Postures>,
+    /// The folder's exemplar spans (`exemplars.json`), if any: what
+    /// `sampling.matching` follows.
+    pub exemplars: Option<super::exemplars::Exemplars>,
     global: Arc<dyn Graph>,
     local: Arc<dyn Graph>,
 }
@@ -63,6 +66,7 @@ impl FrameSession {
             },
         )?;
         let postures = super::posture::Postures::load(path, &manifest.vocabulary)?;
+        let exemplars = super::exemplars::Exemplars::load(path, &manifest.vocabulary)?;
         if postures.is_none() {
             if let Some(kind) = manifest
                 .sampling_by_kind
@@ -80,6 +84,7 @@ impl FrameSession {
         Ok(FrameSession {
             manifest,
             postures,
+            exemplars,
             global,
             local,
         })

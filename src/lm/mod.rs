@@ -29,6 +29,7 @@ pub mod frame_runtime;
 pub mod generate;
 pub mod inbetween;
 pub mod manifest;
+pub mod matching;
 pub mod model;
 pub mod pace;
 pub mod posture;

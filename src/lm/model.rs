@@ -29,6 +29,7 @@ pub struct Named {
     pub pace: bool,
     pub jerk: bool,
     pub ease: bool,
+    pub matching: bool,
 }
 
 /// A loaded motion model of either kind: immutable, shared by requests.
@@ -137,6 +138,9 @@ impl MotionModel {
                 s.ease = a;
             }
         }
+        if let (false, Some(a)) = (named.matching, d.matching) {
+            s.matching = a;
+        }
     }
 
     /// The `top_p`, `posture`, `draws`, `pace` and `jerk` defaults for a request asking for these
@@ -158,6 +162,7 @@ impl MotionModel {
                 out.pace = out.pace.or(d.pace);
                 out.jerk = out.jerk.or(d.jerk);
                 out.ease = out.ease.or(d.ease);
+                out.matching = out.matching.or(d.matching);
             }
         }
         out

@@ -79,6 +79,15 @@ pub struct Sampling {
     /// clip is left to the model, which holds its pace (docs/RESULTS.md,
     /// "Session 42"). 0 = off; nothing to ease against without a seed.
     pub ease: f64,
+    /// Frame model only, with labels: how strongly each joint follows the
+    /// asked-for labels' real takes (motion matching, [`super::matching`]):
+    /// each frame the nearest real frame of the labels (pose and change,
+    /// among the model folder's exemplar spans) is found and every joint
+    /// is pulled toward where that take goes next, half-way corrected
+    /// toward the clip's own pose. With it, the posture pull holds only
+    /// the body's tilt. 0 = off; needs labels and the folder's
+    /// exemplars.json (docs/RESULTS.md, "Session 43").
+    pub matching: f64,
 }
 
 impl Default for Sampling {
@@ -97,6 +106,7 @@ impl Default for Sampling {
             pace: 0.0,
             jerk: 0.0,
             ease: 0.0,
+            matching: 0.0,
         }
     }
 }
@@ -128,6 +138,7 @@ pub const RECOMMENDED: Sampling = Sampling {
     pace: 0.0,
     jerk: 0.0,
     ease: 0.0,
+    matching: 0.0,
 };
 
 /// The most candidate frames `sampling.draws` may ask for.
@@ -220,6 +231,13 @@ impl Sampling {
                     "{} eases the posture pull, and there is none (sampling.posture is 0)",
                     self.ease
                 ),
+            ));
+        }
+        if !(self.matching.is_finite() && (0.0..=10.0).contains(&self.matching)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.matching",
+                format!("{} (want 0 to 10; 0 = off)", self.matching),
             ));
         }
         if self.max_jump > 180 {

@@ -93,6 +93,7 @@ pub(super) fn named(s: &Option<pb::Sampling>) -> crate::service::generate::Named
         pace: s.pace != 0.0,
         jerk: s.jerk != 0.0,
         ease: s.ease != 0.0,
+        matching: s.matching != 0.0,
     }
 }
 
@@ -145,6 +146,12 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.ease.max(0.0)
     };
+    // proto3 again: 0 = the model's default, negative = none.
+    let matching = if s.matching == 0.0 {
+        r.matching
+    } else {
+        s.matching.max(0.0)
+    };
     if !explicit(&s) {
         return crate::lm::Sampling {
             guidance,
@@ -155,6 +162,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
             pace,
             jerk,
             ease,
+            matching,
             ..r
         };
     }
@@ -172,6 +180,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         pace,
         jerk,
         ease,
+        matching,
     }
 }
 

@@ -219,6 +219,12 @@ pub struct SamplingJson {
     /// model's default for the label kinds asked for where there is a
     /// pull, else off.
     pub ease: Option<f64>,
+    /// How strongly each joint follows the asked-for labels' real takes
+    /// (motion matching: the nearest real frame's successor as a target;
+    /// frame model, with labels; the posture pull then holds only the
+    /// body's tilt; 0 = off); absent = the model's default for the label
+    /// kinds asked for, else off.
+    pub matching: Option<f64>,
 }
 
 impl SamplingJson {
@@ -233,6 +239,7 @@ impl SamplingJson {
             pace: self.pace.is_some(),
             jerk: self.jerk.is_some(),
             ease: self.ease.is_some(),
+            matching: self.matching.is_some(),
         }
     }
 
@@ -255,6 +262,7 @@ impl SamplingJson {
                 pace: self.pace.unwrap_or(r.pace),
                 jerk: self.jerk.unwrap_or(r.jerk),
                 ease: self.ease.unwrap_or(r.ease),
+                matching: self.matching.unwrap_or(r.matching),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -271,6 +279,7 @@ impl SamplingJson {
                 pace: self.pace.unwrap_or(r.pace),
                 jerk: self.jerk.unwrap_or(r.jerk),
                 ease: self.ease.unwrap_or(r.ease),
+                matching: self.matching.unwrap_or(r.matching),
             },
         }
     }
