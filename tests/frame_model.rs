@@ -1744,7 +1744,11 @@ fn head_slots_are_added_to_a_model_without_heads() {
     };
     let net = FrameNet::new(bare, &Device::Cpu).unwrap();
     let dir = export(&net, &v);
-    std::fs::write(dir.path().join("exemplars.json"), "{}").unwrap();
+    // An exemplars file travels with the model (a valid one: the session
+    // loads it, for sampling.matching).
+    let ex =
+        serde_json::json!({"fps": v.fps, "frame_len": v.frame_len(), "seconds": 1.0, "items": []});
+    std::fs::write(dir.path().join("exemplars.json"), ex.to_string()).unwrap();
     let tract = choreo::lm::engine::Engine::tract();
     let out = tempfile::tempdir().unwrap();
     let none: [String; 0] = [];
