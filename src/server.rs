@@ -273,7 +273,8 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
         if let Ok(emb) = crate::lm::embed::LmEmbedder::new(&m) {
             searcher.set_lm(emb);
         }
-        let ex = crate::lm::exemplars::Exemplars::load(&cfg.model, m.vocabulary())
+        let ex = m
+            .exemplars(&cfg.model)
             .with_context(|| format!("--model {}", cfg.model.display()))?;
         match &ex {
             Some(e) => tracing::info!(
@@ -283,7 +284,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
             ),
             None => tracing::info!("no {} beside the model: labels alone condition generation", crate::lm::exemplars::FILE),
         }
-        Some((m, ex.map(Arc::new)))
+        Some((m, ex))
     } else {
         tracing::warn!(
             "no model at {}: generate and classify will answer 503 (set --model)",

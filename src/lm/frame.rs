@@ -59,6 +59,13 @@ pub fn slot_wraps(s: usize, slots: usize) -> bool {
     s + 3 < slots
 }
 
+/// The signed step from bin `from` to bin `to` of an angle slot with
+/// `bins` bins, the shorter way round (half a turn counts as −bins/2).
+pub fn short_step(to: u32, from: u32, bins: usize) -> i64 {
+    let bins = bins as i64;
+    (to as i64 - from as i64 + bins / 2).rem_euclid(bins) - bins / 2
+}
+
 impl FrameConfig {
     /// Change classes the change head scores: `0..=2r` then the escape.
     pub fn rel_classes(&self) -> usize {

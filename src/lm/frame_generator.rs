@@ -308,16 +308,17 @@ impl FrameGenerator {
         } else {
             self.sampling.draws.max(1)
         };
-        // Motion matching's target for this frame (it needs a frame before).
-        let library = self.library.clone();
-        let target = library
-            .as_deref()
-            .zip(p1.as_deref())
-            .map(|(l, p)| l.target(p, p2.as_deref()));
-        let follow = library
-            .as_deref()
-            .zip(target.as_deref())
-            .map(|(l, t)| (l, t, self.sampling.matching));
+        // Motion matching's target for this frame (it needs a frame before),
+        // as each slot's offsets: worked out once a frame, shared by every
+        // candidate.
+        let matched: Option<Vec<Option<Vec<f32>>>> =
+            self.library.as_deref().zip(p1.as_deref()).map(|(l, p)| {
+                let t = l.target(p, p2.as_deref());
+                (0..c.slots)
+                    .map(|s| l.offsets(&t, s, self.sampling.matching))
+                    .collect()
+            });
+        let follow = matched.as_deref();
         let ctx = (&vel[..], &prev[..], p1.as_deref());
         let cands = if n > 1 && self.lbatch.is_some() {
             self.draw_frames(
@@ -521,9 +522,8 @@ fn slot_token(
         None => {
             // A followed slot (motion matching) is pulled toward its target
             // only; the postures keep the rest (the root's tilt).
-            let matched = follow.and_then(|(l, t, w)| l.offsets(t, s, w));
-            let offsets = match matched {
-                Some(m) => Some(std::borrow::Cow::Owned(m)),
+            let offsets = match follow.and_then(|f| f[s].as_deref()) {
+                Some(m) => Some(std::borrow::Cow::Borrowed(m)),
                 None => pull.map(|p| p.slot(s, frame)),
             };
             let t = super::frame_draw::draw(
@@ -545,9 +545,9 @@ fn slot_token(
     }
 }
 
-/// Motion matching for one frame: the library, the frame's target and
-/// the weight (`sampling.matching`).
-type Follow<'a> = Option<(&'a super::matching::Library, &'a [u32], f64)>;
+/// Motion matching for one frame: per slot, the logit offsets toward the
+/// frame's target (None for a slot not followed).
+type Follow<'a> = Option<&'a [Option<Vec<f32>>]>;
 
 /// The real frames `sampling.matching` follows for `labels`: the session's
 /// exemplar spans carrying every one of them; a 400 naming the field

@@ -22,7 +22,7 @@ pub struct FrameSession {
     pub postures: Option<super::posture::Postures>,
     /// The folder's exemplar spans (`exemplars.json`), if any: what
     /// `sampling.matching` follows.
-    pub exemplars: Option<super::exemplars::Exemplars>,
+    pub exemplars: Option<Arc<super::exemplars::Exemplars>>,
     global: Arc<dyn Graph>,
     local: Arc<dyn Graph>,
 }
@@ -66,7 +66,8 @@ impl FrameSession {
             },
         )?;
         let postures = super::posture::Postures::load(path, &manifest.vocabulary)?;
-        let exemplars = super::exemplars::Exemplars::load(path, &manifest.vocabulary)?;
+        let exemplars =
+            super::exemplars::Exemplars::load(path, &manifest.vocabulary)?.map(Arc::new);
         if postures.is_none() {
             if let Some(kind) = manifest
                 .sampling_by_kind

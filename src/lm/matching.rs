@@ -17,7 +17,7 @@
 //! (docs/RESULTS.md, "Session 43").
 
 use super::exemplars::Exemplars;
-use super::frame::slot_wraps as wraps;
+use super::frame::{short_step, slot_wraps as wraps};
 use crate::motion::Labels;
 
 /// The change term's weight in the match distance: a joint's change a
@@ -41,11 +41,12 @@ pub struct Library {
     spans: Vec<Vec<Vec<u32>>>,
 }
 
-/// Whether slot `s` of `slots` is matched and pulled: a joint angle (not
-/// the root's rotation, whose heading any take may choose), or the root's
-/// height; not the root's ground velocity (world-frame travel).
+/// Whether slot `s` of `slots` is matched and pulled: the slots the label
+/// postures pull, a joint angle (not the root's rotation, whose heading
+/// any take may choose) or the root's height; not the root's ground
+/// velocity (world-frame travel).
 pub fn followed(s: usize, slots: usize) -> bool {
-    (s >= 3 && wraps(s, slots)) || s + 1 == slots
+    super::posture::pulled(s, slots)
 }
 
 impl Library {
@@ -76,24 +77,12 @@ impl Library {
         (!spans.is_empty()).then_some(Library { slots, bins, spans })
     }
 
-    /// Frames in the library.
-    pub fn frames(&self) -> usize {
-        self.spans.iter().map(|s| s.len()).sum()
-    }
-
     /// `a − b` in bins, the shorter way round for an angle.
     fn diff(&self, s: usize, a: u32, b: u32) -> f64 {
-        let d = a as f64 - b as f64;
         if wraps(s, self.slots) {
-            let n = self.bins as f64;
-            let m = d.rem_euclid(n);
-            if m > n / 2.0 {
-                m - n
-            } else {
-                m
-            }
+            short_step(a, b, self.bins) as f64
         } else {
-            d
+            a as f64 - b as f64
         }
     }
 
@@ -183,7 +172,7 @@ mod tests {
         let rising: Vec<Vec<u32>> = (0..5).map(|i| frame([80 + 10 * i, 50], 100)).collect();
         let still: Vec<Vec<u32>> = (0..5).map(|_| frame([100, 50], 100)).collect();
         let lib = Library::new(vec![still, rising], 8, 360).unwrap();
-        assert_eq!(lib.frames(), 10);
+        assert_eq!(lib.spans.iter().map(|s| s.len()).sum::<usize>(), 10);
         // A clip at 104 that rose 10 bins in its last frame matches the
         // rising take's 100 (not the still one, nearer in pose alone) ...
         let (p2, p1) = (frame([94, 50], 100), frame([104, 50], 100));

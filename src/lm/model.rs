@@ -48,6 +48,21 @@ impl MotionModel {
         MotionModel::load_with(path, &Engine::tract())
     }
 
+    /// The exemplars beside the model at `path`: a frame model's, loaded
+    /// with its session (they are what `sampling.matching` follows), else
+    /// read from the folder.
+    pub fn exemplars(
+        &self,
+        path: &Path,
+    ) -> Result<Option<Arc<super::exemplars::Exemplars>>, LmError> {
+        match self {
+            MotionModel::Frame(s) => Ok(s.exemplars.clone()),
+            MotionModel::Flat(_) => {
+                Ok(super::exemplars::Exemplars::load(path, self.vocabulary())?.map(Arc::new))
+            }
+        }
+    }
+
     /// Loads it on `engine`'s runtime.
     pub fn load_with(path: &Path, engine: &Engine) -> Result<MotionModel, LmError> {
         let (_, name, v): (_, String, serde_json::Value) = read_manifest(path)?;

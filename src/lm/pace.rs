@@ -50,17 +50,9 @@ pub fn frame_pace(
     prev: &[u32],
     cur: &[u32],
 ) -> [f64; PARTS] {
-    let bins = c.bins as i64;
     let width = 2.0 * std::f64::consts::PI / c.bins as f64;
     // The signed change the shorter way round, in bins.
-    let change = |a: u32, b: u32| {
-        let d = (b as i64 - a as i64).rem_euclid(bins);
-        if d > bins / 2 {
-            d - bins
-        } else {
-            d
-        }
-    };
+    let change = |a: u32, b: u32| super::frame::short_step(b, a, c.bins);
     let first_arm_slot = if v.skeleton == "smpl13" {
         3 * SMPL13_FIRST_ARM
     } else {

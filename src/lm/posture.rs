@@ -104,7 +104,7 @@ use super::frame::slot_wraps as wraps;
 /// Whether slot `s` of `slots` is pulled: a joint angle but not the root
 /// joint's rotation (slots 0–2), or the root's height (the last slot);
 /// not the root's ground velocity (the two slots before it).
-fn pulled(s: usize, slots: usize) -> bool {
+pub(super) fn pulled(s: usize, slots: usize) -> bool {
     (s >= 3 && wraps(s, slots)) || s + 1 == slots
 }
 

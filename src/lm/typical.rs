@@ -32,11 +32,7 @@ pub(super) fn most_typical(
 /// the body's centre. The root's travel and height are not counted. A
 /// steady turn or a steady speeding-up costs nothing.
 pub(super) fn frame_jerk(c: &FrameConfig, before: [&[u32]; 3], f: &[u32]) -> f64 {
-    let bins = c.bins as i64;
-    let step = |to: u32, from: u32| {
-        let d = to as i64 - from as i64;
-        (d + bins / 2).rem_euclid(bins) - bins / 2
-    };
+    let step = |to: u32, from: u32| super::frame::short_step(to, from, c.bins);
     let [a, b, d] = before;
     let mut sum = 0.0;
     for s in (0..c.slots).filter(|&s| c.wraps(s)) {
