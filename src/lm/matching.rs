@@ -18,7 +18,11 @@
 
 use super::exemplars::Exemplars;
 use super::frame::{short_step, slot_wraps as wraps};
+use crate::motion::rotation::{
+    axis_angle_to_quat, quat_conj, quat_mul, quat_to_axis_angle, slerp, Quat,
+};
 use crate::motion::Labels;
+use crate::tokenize::UniformBins;
 
 /// The change term's weight in the match distance: a joint's change a
 /// frame is a few bins where poses differ by tens, so a bin of change
@@ -33,12 +37,25 @@ pub const SPREAD: f64 = 4.0;
 const TOWARD_TAKE: f64 = 0.5;
 
 /// The real frames a labelled request follows: spans of frames (slot
-/// tokens, separator dropped), each at least 3 frames long.
+/// tokens, separator dropped), each at least 3 frames long, with each
+/// frame's followed joints as rotations.
+///
+/// Joints are compared and moved as rotations, not as their three
+/// axis-angle slots one by one: near a half turn an axis-angle vector
+/// flips (every component changes sign) while the joint barely moves, and
+/// the Bandai takes hold some joints there most of the time (the right
+/// hip: 69 % of frames within 20° of the flip). Slot by slot, a take on
+/// the other side of the flip looked far away, and a target mixed from
+/// both sides was a pose neither had: those joints shook (their jerk
+/// 1.3–2.1× the default's; docs/RESULTS.md, "Session 44").
 #[derive(Clone, Debug)]
 pub struct Library {
     slots: usize,
     bins: usize,
+    angles: UniformBins,
     spans: Vec<Vec<Vec<u32>>>,
+    /// Per span, per frame: the followed joints' rotations.
+    poses: Vec<Vec<Vec<Quat>>>,
 }
 
 /// Whether slot `s` of `slots` is matched and pulled: the slots the label
@@ -47,6 +64,12 @@ pub struct Library {
 /// velocity (world-frame travel).
 pub fn followed(s: usize, slots: usize) -> bool {
     super::posture::pulled(s, slots)
+}
+
+/// The angle between two rotations, in bins of `width` radians.
+fn apart(a: Quat, b: Quat, width: f64) -> f64 {
+    let d = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]).abs();
+    2.0 * d.min(1.0).acos() / width
 }
 
 impl Library {
@@ -74,32 +97,69 @@ impl Library {
     /// frames are dropped; None if none is left.
     pub fn new(spans: Vec<Vec<Vec<u32>>>, slots: usize, bins: usize) -> Option<Library> {
         let spans: Vec<Vec<Vec<u32>>> = spans.into_iter().filter(|s| s.len() >= 3).collect();
-        (!spans.is_empty()).then_some(Library { slots, bins, spans })
+        let mut lib = Library {
+            slots,
+            bins,
+            angles: UniformBins::angles(bins),
+            spans: Vec::new(),
+            poses: Vec::new(),
+        };
+        lib.poses = spans
+            .iter()
+            .map(|sp| sp.iter().map(|f| lib.pose(f)).collect())
+            .collect();
+        lib.spans = spans;
+        (!lib.spans.is_empty()).then_some(lib)
     }
 
-    /// `a − b` in bins, the shorter way round for an angle.
-    fn diff(&self, s: usize, a: u32, b: u32) -> f64 {
-        if wraps(s, self.slots) {
-            short_step(a, b, self.bins) as f64
-        } else {
-            a as f64 - b as f64
-        }
+    /// The followed joints (every joint but the root): those whose three
+    /// slots are angles.
+    fn joints(&self) -> std::ops::Range<usize> {
+        1..(0..self.slots).filter(|&s| wraps(s, self.slots)).count() / 3
+    }
+
+    /// A frame's followed joints as rotations.
+    fn pose(&self, f: &[u32]) -> Vec<Quat> {
+        self.joints()
+            .map(|j| axis_angle_to_quat([0, 1, 2].map(|i| self.angles.decode(f[3 * j + i]))))
+            .collect()
+    }
+
+    /// `a − b` in bins of a slot that is not an angle (the height).
+    fn diff(&self, a: u32, b: u32) -> f64 {
+        a as f64 - b as f64
     }
 
     /// The library frame nearest `p1` (pose, and with `p2` the change from
-    /// `p2` to `p1` against the library frame's own change): (span, frame),
-    /// never a span's last frame (it has no successor).
+    /// `p2` to `p1` against the library frame's own change; joints by the
+    /// angle between rotations, the height by bins): (span, frame), never
+    /// a span's last frame (it has no successor).
     pub fn nearest(&self, p1: &[u32], p2: Option<&[u32]>) -> (usize, usize) {
+        let h = self.slots - 1;
+        let w = self.angles.width();
+        let q1 = self.pose(p1);
+        // The clip's last change, each joint's rotation from p2 to p1.
+        let c1: Option<Vec<Quat>> = p2.map(|p2| {
+            let q2 = self.pose(p2);
+            q2.iter()
+                .zip(&q1)
+                .map(|(&a, &b)| quat_mul(quat_conj(a), b))
+                .collect()
+        });
         let mut best = (f64::INFINITY, 0, 1);
-        for (si, span) in self.spans.iter().enumerate() {
+        for (si, (span, poses)) in self.spans.iter().zip(&self.poses).enumerate() {
             for j in 1..span.len() - 1 {
-                let (x, xp) = (&span[j], &span[j - 1]);
-                let mut cost = 0.0;
-                for s in (0..self.slots).filter(|&s| followed(s, self.slots)) {
-                    let d = self.diff(s, p1[s], x[s]);
+                let dh = self.diff(p1[h], span[j][h]);
+                let mut cost = dh * dh;
+                if let Some(p2) = p2 {
+                    let v = self.diff(p1[h], p2[h]) - self.diff(span[j][h], span[j - 1][h]);
+                    cost += CHANGE_WEIGHT * v * v;
+                }
+                for (k, (&x, &xp)) in poses[j].iter().zip(&poses[j - 1]).enumerate() {
+                    let d = apart(q1[k], x, w);
                     cost += d * d;
-                    if let Some(p2) = p2 {
-                        let v = self.diff(s, p1[s], p2[s]) - self.diff(s, x[s], xp[s]);
+                    if let Some(c1) = &c1 {
+                        let v = apart(c1[k], quat_mul(quat_conj(xp), x), w);
                         cost += CHANGE_WEIGHT * v * v;
                     }
                     if cost >= best.0 {
@@ -115,23 +175,51 @@ impl Library {
     }
 
     /// The target for the frame after `p1` (see the module's text): per
-    /// slot, the matched frame's successor y moved toward `p1` by half of
-    /// `p1 − x` (x the matched frame); slots not followed keep y's value
-    /// (they are not pulled).
+    /// joint, the rotation part-way (`TOWARD_TAKE`) from p1 turned by the
+    /// matched take's change (x to its successor y) to y itself, written
+    /// as the one of its axis-angle forms nearest p1's slots; the height,
+    /// y's moved toward p1 by half of `p1 − x`; slots not followed keep
+    /// y's value (they are not pulled).
     pub fn target(&self, p1: &[u32], p2: Option<&[u32]>) -> Vec<u32> {
         let (si, j) = self.nearest(p1, p2);
-        let (x, y) = (&self.spans[si][j], &self.spans[si][j + 1]);
-        let n = self.bins as f64;
-        (0..self.slots)
-            .map(|s| {
-                let v = y[s] as f64 + (1.0 - TOWARD_TAKE) * self.diff(s, p1[s], x[s]);
-                if wraps(s, self.slots) {
-                    v.round().rem_euclid(n) as u32
-                } else {
-                    v.round().clamp(0.0, n - 1.0) as u32
-                }
-            })
-            .collect()
+        let (x, y) = (&self.poses[si][j], &self.poses[si][j + 1]);
+        let mut t = self.spans[si][j + 1].clone();
+        let q1 = self.pose(p1);
+        for (k, jt) in self.joints().enumerate() {
+            let moved = quat_mul(q1[k], quat_mul(quat_conj(x[k]), y[k]));
+            let aa = quat_to_axis_angle(slerp(moved, y[k], TOWARD_TAKE));
+            let slots = &mut t[3 * jt..3 * jt + 3];
+            slots.copy_from_slice(&self.nearest_form(aa, &p1[3 * jt..3 * jt + 3]));
+        }
+        let h = self.slots - 1;
+        let (hx, hy) = (self.spans[si][j][h] as f64, self.spans[si][j + 1][h] as f64);
+        let v = hy + (1.0 - TOWARD_TAKE) * (p1[h] as f64 - hx);
+        t[h] = v.round().clamp(0.0, self.bins as f64 - 1.0) as u32;
+        t
+    }
+
+    /// The bins of rotation `aa` (angle in [0, π]) nearest `near`'s: its
+    /// own form, or where every component is in range its twin about the
+    /// opposite axis (angle 2π − θ), the same rotation.
+    fn nearest_form(&self, aa: [f64; 3], near: &[u32]) -> [u32; 3] {
+        let code = |v: [f64; 3]| v.map(|c| self.angles.encode(c));
+        let dist = |b: &[u32; 3]| -> i64 {
+            b.iter()
+                .zip(near)
+                .map(|(&a, &n)| short_step(a, n, self.bins).pow(2))
+                .sum()
+        };
+        let own = code(aa);
+        let th = (aa[0] * aa[0] + aa[1] * aa[1] + aa[2] * aa[2]).sqrt();
+        if th < 1e-9 {
+            return own;
+        }
+        let twin = aa.map(|c| c * (1.0 - 2.0 * std::f64::consts::PI / th));
+        if twin.iter().all(|c| c.abs() < std::f64::consts::PI) && dist(&code(twin)) < dist(&own) {
+            code(twin)
+        } else {
+            own
+        }
     }
 
     /// Slot `s`'s logit offsets toward `target` times `weight` (None for a
@@ -141,7 +229,11 @@ impl Library {
             let k = weight / (2.0 * SPREAD * SPREAD);
             (0..self.bins)
                 .map(|b| {
-                    let d = self.diff(s, b as u32, target[s]);
+                    let d = if wraps(s, self.slots) {
+                        short_step(b as u32, target[s], self.bins) as f64
+                    } else {
+                        self.diff(b as u32, target[s])
+                    };
                     (-k * d * d) as f32
                 })
                 .collect()
@@ -153,59 +245,98 @@ impl Library {
 mod tests {
     use super::*;
 
-    // 8 slots: 0–2 the root's rotation, 3–4 joints, 5–6 the root's ground
-    // velocity, 7 its height; 360 bins.
-    fn frame(j: [u32; 2], h: u32) -> Vec<u32> {
-        vec![0, 0, 0, j[0], j[1], 180, 180, h]
+    // 9 slots: 0–2 the root's rotation, 3–5 a joint, 6–7 the root's ground
+    // velocity, 8 its height; 360 bins (bin b is (b − 179.5)°).
+    fn frame(j: [u32; 3], h: u32) -> Vec<u32> {
+        vec![180, 180, 180, j[0], j[1], j[2], 180, 180, h]
     }
 
     #[test]
     fn only_joints_and_the_height_are_followed() {
-        let f: Vec<bool> = (0..8).map(|s| followed(s, 8)).collect();
-        assert_eq!(f, [false, false, false, true, true, false, false, true]);
+        let f: Vec<bool> = (0..9).map(|s| followed(s, 9)).collect();
+        assert_eq!(
+            f,
+            [false, false, false, true, true, true, false, false, true]
+        );
     }
 
     #[test]
     fn the_nearest_frame_weighs_the_change_and_the_target_goes_half_way() {
-        // Two takes through the same pose (joint 3 at 100), one rising 10
-        // bins a frame, one still.
-        let rising: Vec<Vec<u32>> = (0..5).map(|i| frame([80 + 10 * i, 50], 100)).collect();
-        let still: Vec<Vec<u32>> = (0..5).map(|_| frame([100, 50], 100)).collect();
-        let lib = Library::new(vec![still, rising], 8, 360).unwrap();
+        // Two takes through the same pose (the joint turned ~100° about x),
+        // one turning 10° more a frame, one still.
+        let rising: Vec<Vec<u32>> = (0..5)
+            .map(|i| frame([260 + 10 * i, 180, 180], 100))
+            .collect();
+        let still: Vec<Vec<u32>> = (0..5).map(|_| frame([280, 180, 180], 100)).collect();
+        let lib = Library::new(vec![still, rising], 9, 360).unwrap();
         assert_eq!(lib.spans.iter().map(|s| s.len()).sum::<usize>(), 10);
-        // A clip at 104 that rose 10 bins in its last frame matches the
-        // rising take's 100 (not the still one, nearer in pose alone) ...
-        let (p2, p1) = (frame([94, 50], 100), frame([104, 50], 100));
+        // A clip 4° past that pose that turned 10° in its last frame
+        // matches the rising take's 280 (not the still one, nearer in pose
+        // alone) ...
+        let (p2, p1) = (frame([274, 180, 180], 100), frame([284, 180, 180], 100));
         assert_eq!(lib.nearest(&p1, Some(&p2)), (1, 2));
-        // ... and its target is 110 + (104 − 100) / 2 = 112.
-        assert_eq!(lib.target(&p1, Some(&p2))[3], 112);
+        // ... and its target is 290 + (284 − 280) / 2 = 292 (a bin either
+        // way: the slots are bin centres).
+        let t = lib.target(&p1, Some(&p2));
+        assert!((291..=293).contains(&t[3]), "target {t:?}");
+        assert!(t[4].abs_diff(180) <= 1 && t[5].abs_diff(180) <= 1, "{t:?}");
         // Without the change the still take is as near (its middle frame
-        // is found first) and the target stays where the clip is: 100 + 2.
+        // is found first) and the target stays where the clip is: 280 + 2.
         let (si, _) = lib.nearest(&p1, None);
         assert_eq!(si, 0);
-        assert_eq!(lib.target(&p1, None)[3], 102);
+        assert!((281..=283).contains(&lib.target(&p1, None)[3]));
     }
 
     #[test]
     fn angles_match_and_pull_the_shorter_way_round() {
+        // Through the half turn about x: 176.5°, 178.5°, −179.5°, −177.5°.
         let take: Vec<Vec<u32>> = (0..4)
-            .map(|i| frame([356 + 2 * i, 50], 100))
-            .map(|mut f| {
-                f[3] %= 360;
-                f
-            })
+            .map(|i| frame([(356 + 2 * i) % 360, 180, 180], 100))
             .collect();
-        let lib = Library::new(vec![take], 8, 360).unwrap();
+        let lib = Library::new(vec![take], 9, 360).unwrap();
         // 358 → 0 → 2: a clip at 1 having come from 359 is at frame 1 (358)
         // or 2 (0); either way the target is past 0, not 180 bins off.
-        let t = lib.target(&frame([1, 50], 100), Some(&frame([359, 50], 100)));
+        let t = lib.target(
+            &frame([1, 180, 180], 100),
+            Some(&frame([359, 180, 180], 100)),
+        );
         assert!(t[3] <= 4, "target {}", t[3]);
         let off = lib.offsets(&t, 3, 1.0).unwrap();
         let best = (0..360).max_by(|&a, &b| off[a].total_cmp(&off[b])).unwrap();
         assert_eq!(best as u32, t[3]);
         assert!(off[359] > off[180]);
-        assert!(lib.offsets(&t, 5, 1.0).is_none());
+        assert!(lib.offsets(&t, 6, 1.0).is_none());
         // Too short a span is no library.
-        assert!(Library::new(vec![vec![frame([0, 0], 0); 2]], 8, 360).is_none());
+        assert!(Library::new(vec![vec![frame([0, 0, 0], 0); 2]], 9, 360).is_none());
+    }
+
+    #[test]
+    fn a_joint_near_the_half_turn_matches_its_twin_form() {
+        // 170° about (1, 1, 0)/√2, and the same rotation written the other
+        // way round (190° about the opposite axis): far apart slot by slot.
+        let bins = UniformBins::angles(360);
+        let th = 170f64.to_radians();
+        let c = th / 2f64.sqrt();
+        let own = [c, c, 0.0].map(|v| bins.encode(v));
+        let k = 1.0 - 2.0 * std::f64::consts::PI / th;
+        let twin = [c * k, c * k, 0.0].map(|v| bins.encode(v));
+        assert!(short_step(own[0], twin[0], 360).abs() > 90);
+        // One take holds the pose in the twin form; another holds a pose
+        // 30° away about z, nearer the clip's slots.
+        let held: Vec<Vec<u32>> = vec![frame(twin, 100); 4];
+        let off = frame([own[0], own[1], (own[2] + 30) % 360], 100);
+        let other: Vec<Vec<u32>> = vec![off; 4];
+        let lib = Library::new(vec![other, held], 9, 360).unwrap();
+        // A still clip in the own form matches the held take, and its
+        // target is written in the clip's form, where it already is.
+        let p = frame(own, 100);
+        assert_eq!(lib.nearest(&p, Some(&p)).0, 1);
+        let t = lib.target(&p, Some(&p));
+        for i in 0..3 {
+            assert!(
+                short_step(t[3 + i], own[i], 360).abs() <= 1,
+                "{t:?} vs {own:?}"
+            );
+        }
     }
 }
