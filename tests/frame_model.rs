@@ -655,6 +655,28 @@ fn posture_pulls_the_joints_toward_the_labels_posture() {
     let mut sad = Labels::new();
     sad.insert("style".into(), "sad".into());
     refused(&model, &sad, &matching_s, "no exemplar span");
+    // A matching the request did not name (a kind's default) applies only
+    // where there are takes to follow: dropped for "sad", not refused;
+    // named, it stays (and is refused above).
+    assert!(model.can_match(&labels) && !model.can_match(&sad));
+    assert!(!model.can_match(&Labels::new()));
+    let filled = |l: &Labels, matching: bool| {
+        let mut s = matching_s.clone();
+        let named = choreo::lm::model::Named {
+            matching,
+            ..Default::default()
+        };
+        model.fill_defaults(l, &mut s, named);
+        s.matching
+    };
+    assert_eq!(
+        (
+            filled(&labels, false),
+            filled(&sad, false),
+            filled(&sad, true)
+        ),
+        (3.0, 0.0, 3.0)
+    );
     refused(
         &model,
         &labels,
@@ -917,14 +939,14 @@ fn bad_frame_manifests_are_clear_errors() {
     assert_eq!((d.top_p, d.posture, d.draws), (Some(0.8), None, Some(3)));
     // A request naming no draws gets the kind's; one naming it keeps its own.
     let mut s = choreo::lm::sampling::RECOMMENDED;
-    m4.fill_defaults([&kinds[0]], &mut s, Default::default());
+    m4.fill_kind_defaults([&kinds[0]], &mut s, Default::default());
     assert_eq!(s.draws, 3);
     let mut s = choreo::lm::sampling::RECOMMENDED;
     let named = choreo::lm::model::Named {
         draws: true,
         ..Default::default()
     };
-    m4.fill_defaults([&kinds[0]], &mut s, named);
+    m4.fill_kind_defaults([&kinds[0]], &mut s, named);
     assert_eq!(s.draws, 1);
     assert_eq!(m4.kind_sampling([&other]), Default::default());
     // A kind's pace hold and jerk price come with its draws; a request that
@@ -934,7 +956,7 @@ fn bad_frame_manifests_are_clear_errors() {
         .unwrap();
     let prices = |named: choreo::lm::model::Named| {
         let mut s = choreo::lm::sampling::RECOMMENDED;
-        m5.fill_defaults([&kinds[0]], &mut s, named);
+        m5.fill_kind_defaults([&kinds[0]], &mut s, named);
         (s.draws, s.pace, s.jerk)
     };
     assert_eq!(prices(Default::default()), (4, 5.0, 1.0));

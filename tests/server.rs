@@ -1103,6 +1103,16 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         // there is a pull.
         let ease = if posture > 0.0 { 1.0 } else { 0.0 };
         assert_eq!(s["ease"].as_f64(), Some(ease), "{labels}: {s}");
+        // A style request follows the style's real takes (matching 6),
+        // where the bundled exemplars hold takes of every asked-for label:
+        // none hold a Bandai style and an AIST++ genre at once, so that
+        // request runs without (and is not refused).
+        let matching = if labels.get("style").is_some() && labels.get("genre").is_none() {
+            6.0
+        } else {
+            0.0
+        };
+        assert_eq!(s["matching"].as_f64(), Some(matching), "{labels}: {s}");
         assert_eq!(
             (s["top_p"].as_f64(), s["posture"].as_f64()),
             (Some(top_p), Some(posture)),
@@ -1141,6 +1151,8 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         assert_eq!(s.jerk, jerk, "{kind}");
         // The answer spells "none" as a request does (negative).
         assert_eq!(s.ease, 1.0, "{kind}");
+        let matching = if kind == "style" { 6.0 } else { -1.0 };
+        assert_eq!(s.matching, matching, "{kind}");
     }
 
     // Streaming gives the one-shot frames, one message each.

@@ -133,7 +133,7 @@ pub fn run(
     let mut labelled = serde_json::Value::Null;
     if !labels.is_empty() {
         let mut s = Sampling::recommended(1);
-        model.fill_defaults(labels.keys(), &mut s, Default::default());
+        model.fill_defaults(labels, &mut s, Default::default());
         let g = model.generator(labels, &[], s.clone())?;
         labelled = stream(g, frames, &free, v.fps)?;
         labelled["labels"] = serde_json::json!(labels);

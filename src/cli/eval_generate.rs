@@ -123,7 +123,7 @@ pub fn run(
             if s == "default" {
                 // What a request for this label kind naming no sampling gets.
                 let mut sm = choreo::lm::sampling::RECOMMENDED;
-                m.fill_defaults(&kind, &mut sm, Default::default());
+                m.fill_kind_defaults(&kind, &mut sm, Default::default());
                 return Ok(Sampling { seed, ..sm });
             }
             // J `auto`: the model's default for the label kind.

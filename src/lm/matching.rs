@@ -93,6 +93,16 @@ impl Library {
         Library::new(spans, slots, bins).filter(|_| !labels.is_empty())
     }
 
+    /// Whether [`Self::for_labels`] finds a span (without building the
+    /// library).
+    pub fn available(ex: &Exemplars, labels: &Labels, slots: usize) -> bool {
+        !labels.is_empty()
+            && ex.spans().any(|(it, toks)| {
+                toks.len() >= 3 * (slots + 1)
+                    && labels.iter().all(|(k, v)| it.labels.get(k) == Some(v))
+            })
+    }
+
     /// A library of `spans` (frames of `slots` value tokens); spans under 3
     /// frames are dropped; None if none is left.
     pub fn new(spans: Vec<Vec<Vec<u32>>>, slots: usize, bins: usize) -> Option<Library> {

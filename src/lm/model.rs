@@ -118,7 +118,37 @@ impl MotionModel {
     /// service and `choreo eval generate --sampling default` both go
     /// through here, so what is measured as the default is what a request
     /// naming no sampling gets.
-    pub fn fill_defaults<'a, I>(&self, kinds: I, s: &mut Sampling, named: Named)
+    ///
+    /// A default `matching` (one the request did not name) applies only
+    /// where the model has real takes of every asked-for label to follow
+    /// ([`super::matching::Library::available`]); elsewhere (labels of two
+    /// corpora, a model folder without exemplars.json) the request runs
+    /// without it, as the answer's sampling then says, where naming it
+    /// would be a 400.
+    pub fn fill_defaults(&self, labels: &Labels, s: &mut Sampling, named: Named) {
+        self.fill_kind_defaults(labels.keys(), s, named);
+        if !named.matching && s.matching > 0.0 && !self.can_match(labels) {
+            s.matching = 0.0;
+        }
+    }
+
+    /// Whether `sampling.matching` can follow real takes of `labels`: a
+    /// frame model whose exemplars hold a span of 3 frames or more
+    /// carrying every one of them.
+    pub fn can_match(&self, labels: &Labels) -> bool {
+        match self {
+            MotionModel::Flat(_) => false,
+            MotionModel::Frame(f) => f.exemplars.as_deref().is_some_and(|ex| {
+                super::matching::Library::available(ex, labels, f.config().slots)
+            }),
+        }
+    }
+
+    /// [`Self::fill_defaults`] for label kinds alone (`choreo eval generate
+    /// --sampling default`, which asks for every value of one kind): a
+    /// default `matching` stays, and a value without real takes to follow
+    /// is then a clear error.
+    pub fn fill_kind_defaults<'a, I>(&self, kinds: I, s: &mut Sampling, named: Named)
     where
         I: IntoIterator<Item = &'a String> + Clone,
     {

@@ -24,7 +24,7 @@ impl DuetSession {
         (mut sampling, named): (Sampling, super::generate::Named),
     ) -> Result<DuetSession, ApiError> {
         let session = model(state)?;
-        session.fill_defaults(labels.keys(), &mut sampling, named);
+        session.fill_defaults(labels, &mut sampling, named);
         let duet = crate::lm::duet::Duet::new(session, labels, joints, sampling)?;
         let permit = state
             .workers

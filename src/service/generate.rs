@@ -149,7 +149,7 @@ pub async fn generate_job(
 ) -> Result<GenerateJob, ApiError> {
     let session = model(state)?;
     let vocab = session.vocabulary();
-    session.fill_defaults(p.labels.keys(), &mut p.sampling, p.named);
+    session.fill_defaults(&p.labels, &mut p.sampling, p.named);
     if p.frames > MAX_GENERATE_FRAMES {
         return Err(ApiError::invalid(
             "frames",
