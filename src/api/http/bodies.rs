@@ -223,7 +223,8 @@ pub struct SamplingJson {
     /// (motion matching: the nearest real frame's successor as a target;
     /// frame model, with labels; the posture pull then holds only the
     /// body's tilt; 0 = off); absent = the model's default for the label
-    /// kinds asked for, else off.
+    /// kinds asked for (the bundled model: 6 for a style) where the model
+    /// has real takes of every asked-for label, else off.
     pub matching: Option<f64>,
 }
 
