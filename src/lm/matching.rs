@@ -4,17 +4,18 @@
 //! root's height) is found among the model folder's exemplar spans
 //! ([`super::exemplars`]: training takes only), and every joint slot is
 //! pulled toward a target, `−w d(b, target)² / (2σ²)` on every bin b,
-//! beside the model's own distribution. The target is the matched frame's
-//! successor moved half-way toward the clip's own pose: half "go where the
-//! real take goes", half "move as the real take moves from where the clip
-//! is".
+//! beside the model's own distribution. The target is half-way between
+//! the matched frame's successor and the clip's own pose moved as the take
+//! moves: half "go where the real take goes", half "move as the real take
+//! moves from where the clip is". Joints are matched and moved as
+//! rotations ([`Library`]).
 //!
 //! The label postures ([`super::posture`]) pull toward where a label holds
 //! a joint, a still pose, and damp every swing; this pulls toward where a
 //! real take of the label goes next. With `matching` on, the postures hold
 //! only the body's tilt (the root's rotation, which matching leaves alone:
 //! a take's heading is its own) and the joints follow the takes
-//! (docs/RESULTS.md, "Session 43").
+//! (docs/RESULTS.md, "Session 43" and "Session 44").
 
 use super::exemplars::Exemplars;
 use super::frame::{short_step, slot_wraps as wraps};
@@ -56,6 +57,22 @@ pub struct Library {
     spans: Vec<Vec<Vec<u32>>>,
     /// Per span, per frame: the followed joints' rotations.
     poses: Vec<Vec<Vec<Quat>>>,
+    /// Per span, per frame after the first: each followed joint's turn
+    /// from the frame before (x_prev⁻¹ · x).
+    turns: Vec<Vec<Vec<Quat>>>,
+}
+
+/// Whether exemplar `it` carries every one of `labels`.
+fn carries(it: &super::exemplars::Exemplar, labels: &Labels) -> bool {
+    labels.iter().all(|(k, v)| it.labels.get(k) == Some(v))
+}
+
+/// Each joint's turn from `from` to `to`.
+fn turns(from: &[Quat], to: &[Quat]) -> Vec<Quat> {
+    from.iter()
+        .zip(to)
+        .map(|(&a, &b)| quat_mul(quat_conj(a), b))
+        .collect()
 }
 
 /// Whether slot `s` of `slots` is matched and pulled: the slots the label
@@ -83,7 +100,7 @@ impl Library {
     ) -> Option<Library> {
         let spans = ex
             .spans()
-            .filter(|(it, _)| labels.iter().all(|(k, v)| it.labels.get(k) == Some(v)))
+            .filter(|(it, _)| carries(it, labels))
             .map(|(_, toks)| {
                 toks.chunks_exact(slots + 1)
                     .map(|f| f[..slots].to_vec())
@@ -97,10 +114,9 @@ impl Library {
     /// library).
     pub fn available(ex: &Exemplars, labels: &Labels, slots: usize) -> bool {
         !labels.is_empty()
-            && ex.spans().any(|(it, toks)| {
-                toks.len() >= 3 * (slots + 1)
-                    && labels.iter().all(|(k, v)| it.labels.get(k) == Some(v))
-            })
+            && ex
+                .spans()
+                .any(|(it, toks)| toks.len() >= 3 * (slots + 1) && carries(it, labels))
     }
 
     /// A library of `spans` (frames of `slots` value tokens); spans under 3
@@ -113,10 +129,16 @@ impl Library {
             angles: UniformBins::angles(bins),
             spans: Vec::new(),
             poses: Vec::new(),
+            turns: Vec::new(),
         };
         lib.poses = spans
             .iter()
-            .map(|sp| sp.iter().map(|f| lib.pose(f)).collect())
+            .map(|sp| sp.iter().map(|f| lib.pose(f)).collect::<Vec<_>>())
+            .collect();
+        lib.turns = lib
+            .poses
+            .iter()
+            .map(|ps| ps.windows(2).map(|w| turns(&w[0], &w[1])).collect())
             .collect();
         lib.spans = spans;
         (!lib.spans.is_empty()).then_some(lib)
@@ -145,17 +167,15 @@ impl Library {
     /// angle between rotations, the height by bins): (span, frame), never
     /// a span's last frame (it has no successor).
     pub fn nearest(&self, p1: &[u32], p2: Option<&[u32]>) -> (usize, usize) {
+        self.nearest_pose(p1, &self.pose(p1), p2)
+    }
+
+    /// [`Self::nearest`] with `p1`'s rotations `q1` already worked out.
+    fn nearest_pose(&self, p1: &[u32], q1: &[Quat], p2: Option<&[u32]>) -> (usize, usize) {
         let h = self.slots - 1;
         let w = self.angles.width();
-        let q1 = self.pose(p1);
-        // The clip's last change, each joint's rotation from p2 to p1.
-        let c1: Option<Vec<Quat>> = p2.map(|p2| {
-            let q2 = self.pose(p2);
-            q2.iter()
-                .zip(&q1)
-                .map(|(&a, &b)| quat_mul(quat_conj(a), b))
-                .collect()
-        });
+        // The clip's last turn, each joint's rotation from p2 to p1.
+        let c1: Option<Vec<Quat>> = p2.map(|p2| turns(&self.pose(p2), q1));
         let mut best = (f64::INFINITY, 0, 1);
         for (si, (span, poses)) in self.spans.iter().zip(&self.poses).enumerate() {
             for j in 1..span.len() - 1 {
@@ -165,11 +185,11 @@ impl Library {
                     let v = self.diff(p1[h], p2[h]) - self.diff(span[j][h], span[j - 1][h]);
                     cost += CHANGE_WEIGHT * v * v;
                 }
-                for (k, (&x, &xp)) in poses[j].iter().zip(&poses[j - 1]).enumerate() {
+                for (k, (&x, &turn)) in poses[j].iter().zip(&self.turns[si][j - 1]).enumerate() {
                     let d = apart(q1[k], x, w);
                     cost += d * d;
                     if let Some(c1) = &c1 {
-                        let v = apart(c1[k], quat_mul(quat_conj(xp), x), w);
+                        let v = apart(c1[k], turn, w);
                         cost += CHANGE_WEIGHT * v * v;
                     }
                     if cost >= best.0 {
@@ -191,12 +211,13 @@ impl Library {
     /// y's moved toward p1 by half of `p1 − x`; slots not followed keep
     /// y's value (they are not pulled).
     pub fn target(&self, p1: &[u32], p2: Option<&[u32]>) -> Vec<u32> {
-        let (si, j) = self.nearest(p1, p2);
-        let (x, y) = (&self.poses[si][j], &self.poses[si][j + 1]);
-        let mut t = self.spans[si][j + 1].clone();
         let q1 = self.pose(p1);
+        let (si, j) = self.nearest_pose(p1, &q1, p2);
+        let y = &self.poses[si][j + 1];
+        let mut t = self.spans[si][j + 1].clone();
         for (k, jt) in self.joints().enumerate() {
-            let moved = quat_mul(q1[k], quat_mul(quat_conj(x[k]), y[k]));
+            // x⁻¹ · y is the take's turn into its next frame.
+            let moved = quat_mul(q1[k], self.turns[si][j][k]);
             let aa = quat_to_axis_angle(slerp(moved, y[k], TOWARD_TAKE));
             let slots = &mut t[3 * jt..3 * jt + 3];
             slots.copy_from_slice(&self.nearest_form(aa, &p1[3 * jt..3 * jt + 3]));

@@ -112,12 +112,12 @@ impl MotionModel {
         }
     }
 
-    /// Fills in what a request for these label kinds did not name of
-    /// `max_jump`, `top_p`, `posture`, `draws`, `pace` and `jerk`: the model's defaults for those
-    /// kinds ([`Self::default_max_jump`], [`Self::kind_sampling`]). The
-    /// service and `choreo eval generate --sampling default` both go
-    /// through here, so what is measured as the default is what a request
-    /// naming no sampling gets.
+    /// Fills in what a request for these labels did not name of
+    /// `max_jump`, `top_p`, `posture`, `draws`, `pace`, `jerk`, `ease` and
+    /// `matching`: the model's defaults for their kinds
+    /// ([`Self::fill_kind_defaults`], which `choreo eval generate
+    /// --sampling default` goes through too, so what is measured as the
+    /// default is what a request naming no sampling gets).
     ///
     /// A default `matching` (one the request did not name) applies only
     /// where the model has real takes of every asked-for label to follow
