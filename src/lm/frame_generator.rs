@@ -10,6 +10,7 @@ use super::frame_runtime::{FrameSession, Step};
 use super::sampling::Sampling;
 use super::LmError;
 use crate::motion::Labels;
+use crate::tokenize::vocab::RootVelocity;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use std::sync::Arc;
@@ -566,9 +567,18 @@ fn library_for(
         bad("this model has no exemplars.json to follow (choreo exemplars writes one)")
     })?;
     let c = session.config();
-    super::matching::Library::for_labels(ex, labels, c.slots, c.bins).ok_or_else(|| {
-        bad("no exemplar span of this model carries every asked-for label (choreo exemplars writes them)")
-    })
+    super::matching::Library::for_labels(ex, labels, c.slots, c.bins)
+        .map(|l| {
+            let v = &session.manifest.vocabulary;
+            if v.frame_len() == c.slots + 1 {
+                l.travelling(v.velocity_bins(), v.root_velocity == RootVelocity::Heading)
+            } else {
+                l
+            }
+        })
+        .ok_or_else(|| {
+            bad("no exemplar span of this model carries every asked-for label (choreo exemplars writes them)")
+        })
 }
 
 /// The frames the global window holds: `sampling.context` (never more

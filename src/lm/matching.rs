@@ -8,7 +8,10 @@
 //! the matched frame's successor and the clip's own pose moved as the take
 //! moves: half "go where the real take goes", half "move as the real take
 //! moves from where the clip is". Joints are matched and moved as
-//! rotations ([`Library`]).
+//! rotations ([`Library`]). The root's ground velocity follows the matched
+//! take's too, in the body's own heading ([`Library::travelling`]): the
+//! legs and the travel come from the same real frames, so the feet slide
+//! less and a clip keeps the take's pace (docs/RESULTS.md, "Session 45").
 //!
 //! The label postures ([`super::posture`]) pull toward where a label holds
 //! a joint, a still pose, and damp every swing; this pulls toward where a
@@ -23,6 +26,7 @@ use crate::motion::rotation::{
     axis_angle_to_quat, quat_conj, quat_mul, quat_to_axis_angle, slerp, Quat,
 };
 use crate::motion::Labels;
+use crate::tokenize::vocab::{heading_of, turn};
 use crate::tokenize::UniformBins;
 
 /// The change term's weight in the match distance: a joint's change a
@@ -60,7 +64,28 @@ pub struct Library {
     /// Per span, per frame after the first: each followed joint's turn
     /// from the frame before (x_prev⁻¹ · x).
     turns: Vec<Vec<Vec<Quat>>>,
+    /// The root's travel, where the library knows the vocabulary's
+    /// velocity bins ([`Library::travelling`]).
+    travel: Option<Travel>,
 }
+
+/// The root's ground velocity as the takes travel: each library frame's
+/// pelvis heading and its velocity in that heading (sideways, forward),
+/// so that a take walking north can lead a clip facing east.
+#[derive(Clone, Debug)]
+struct Travel {
+    bins: UniformBins,
+    /// Whether the slots already hold the velocity in the heading
+    /// (`root_velocity: heading`); else in the scene's axes.
+    heading_slots: bool,
+    /// Per span, per frame: (heading, velocity in the heading).
+    local: Vec<Vec<(f64, (f64, f64))>>,
+}
+
+/// The root's travel pull: its weight as a share of the joints' and its
+/// spread (velocity bins; 0.18 m/s in the bundled vocabulary's).
+const TRAVEL_WEIGHT: f64 = 1.0;
+const TRAVEL_SPREAD: f64 = 8.0;
 
 /// Whether exemplar `it` carries every one of `labels`.
 fn carries(it: &super::exemplars::Exemplar, labels: &Labels) -> bool {
@@ -130,6 +155,7 @@ impl Library {
             spans: Vec::new(),
             poses: Vec::new(),
             turns: Vec::new(),
+            travel: None,
         };
         lib.poses = spans
             .iter()
@@ -142,6 +168,41 @@ impl Library {
             .collect();
         lib.spans = spans;
         (!lib.spans.is_empty()).then_some(lib)
+    }
+
+    /// The library with the root's ground velocity followed too:
+    /// `bins`, the velocity slots' bins, and whether they hold it in the
+    /// pelvis's heading (else in the scene's axes). The velocity slots are
+    /// the two before the height.
+    pub fn travelling(mut self, bins: UniformBins, heading_slots: bool) -> Library {
+        let local = self
+            .spans
+            .iter()
+            .map(|sp| {
+                sp.iter()
+                    .map(|f| self.local_velocity(&bins, heading_slots, f))
+                    .collect()
+            })
+            .collect();
+        self.travel = Some(Travel {
+            bins,
+            heading_slots,
+            local,
+        });
+        self
+    }
+
+    /// A frame's pelvis heading and its root velocity in that heading.
+    fn local_velocity(
+        &self,
+        bins: &UniformBins,
+        heading_slots: bool,
+        f: &[u32],
+    ) -> (f64, (f64, f64)) {
+        let h = heading_of([0, 1, 2].map(|i| self.angles.decode(f[i])));
+        let vs = self.slots - 3;
+        let v = (bins.decode(f[vs]), bins.decode(f[vs + 1]));
+        (h, if heading_slots { v } else { turn(v, -h) })
     }
 
     /// The followed joints (every joint but the root): those whose three
@@ -226,6 +287,24 @@ impl Library {
         let (hx, hy) = (self.spans[si][j][h] as f64, self.spans[si][j + 1][h] as f64);
         let v = hy + (1.0 - TOWARD_TAKE) * (p1[h] as f64 - hx);
         t[h] = v.round().clamp(0.0, self.bins as f64 - 1.0) as u32;
+        if let Some(tr) = &self.travel {
+            // The take's velocity in its heading, half moved from the
+            // clip's own (as the joints), then turned into the heading the
+            // clip will have: its own turned as the take turns.
+            let (hx, lx) = tr.local[si][j];
+            let (hy, ly) = tr.local[si][j + 1];
+            let (h1, l1) = self.local_velocity(&tr.bins, tr.heading_slots, p1);
+            let k = 1.0 - TOWARD_TAKE;
+            let lt = (ly.0 + k * (l1.0 - lx.0), ly.1 + k * (l1.1 - lx.1));
+            let v = if tr.heading_slots {
+                lt
+            } else {
+                turn(lt, h1 + (hy - hx))
+            };
+            let vs = self.slots - 3;
+            t[vs] = tr.bins.encode(v.0);
+            t[vs + 1] = tr.bins.encode(v.1);
+        }
         t
     }
 
@@ -256,6 +335,17 @@ impl Library {
     /// Slot `s`'s logit offsets toward `target` times `weight` (None for a
     /// slot not followed).
     pub fn offsets(&self, target: &[u32], s: usize, weight: f64) -> Option<Vec<f32>> {
+        if self.travel.is_some() && (s + 3 == self.slots || s + 2 == self.slots) {
+            let k = weight * TRAVEL_WEIGHT / (2.0 * TRAVEL_SPREAD * TRAVEL_SPREAD);
+            return Some(
+                (0..self.bins)
+                    .map(|b| {
+                        let d = self.diff(b as u32, target[s]);
+                        (-k * d * d) as f32
+                    })
+                    .collect(),
+            );
+        }
         followed(s, self.slots).then(|| {
             let k = weight / (2.0 * SPREAD * SPREAD);
             (0..self.bins)
@@ -369,5 +459,51 @@ mod tests {
                 "{t:?} vs {own:?}"
             );
         }
+    }
+
+    #[test]
+    fn the_root_travels_as_the_take_does_in_the_clips_heading() {
+        // A take facing +z (no pelvis turn) walking forward at 1 m/s; a
+        // clip turned a quarter about y (facing +x) walking forward too.
+        let vb = UniformBins {
+            bins: 360,
+            lo: -4.0,
+            hi: 4.0,
+        };
+        let walk = |pelvis: [u32; 3], v: (f64, f64)| {
+            let mut f = frame([200, 180, 180], 100);
+            f[..3].copy_from_slice(&pelvis);
+            f[6] = vb.encode(v.0);
+            f[7] = vb.encode(v.1);
+            f
+        };
+        let take = vec![walk([180, 180, 180], (0.0, 1.0)); 4];
+        let plain = Library::new(vec![take.clone()], 9, 360).unwrap();
+        let lib = Library::new(vec![take], 9, 360)
+            .unwrap()
+            .travelling(vb.clone(), false);
+        let quarter = UniformBins::angles(360).encode(std::f64::consts::FRAC_PI_2);
+        let p = walk([180, quarter, 180], (1.0, 0.0));
+        // Without travel the velocity slots are not followed.
+        assert!(plain.offsets(&plain.target(&p, Some(&p)), 6, 1.0).is_none());
+        // With it the target walks along +x at the take's speed ...
+        let t = lib.target(&p, Some(&p));
+        assert!(t[6].abs_diff(vb.encode(1.0)) <= 1, "{t:?}");
+        assert!(t[7].abs_diff(vb.encode(0.0)) <= 1, "{t:?}");
+        let off = lib.offsets(&t, 7, 1.0).unwrap();
+        let best = (0..360).max_by(|&a, &b| off[a].total_cmp(&off[b])).unwrap();
+        assert_eq!(best as u32, t[7]);
+        // ... and a standing clip is led half-way to the take's pace.
+        let still = walk([180, quarter, 180], (0.0, 0.0));
+        let t = lib.target(&still, Some(&still));
+        assert!(t[6].abs_diff(vb.encode(0.5)) <= 1, "{t:?}");
+        // Slots already in the heading (the clip walking forward in them):
+        // the take's forward pace, as is.
+        let lib = Library::new(vec![vec![walk([180, 180, 180], (0.0, 1.0)); 4]], 9, 360)
+            .unwrap()
+            .travelling(vb.clone(), true);
+        let p = walk([180, quarter, 180], (0.0, 1.0));
+        let t = lib.target(&p, Some(&p));
+        assert!(t[7].abs_diff(vb.encode(1.0)) <= 1 && t[6].abs_diff(vb.encode(0.0)) <= 1);
     }
 }

@@ -101,7 +101,7 @@ pub fn heading_of(pelvis: Vec3) -> f64 {
 }
 
 /// A ground vector (x, z) turned by `yaw` about +y.
-fn turn(v: (f64, f64), yaw: f64) -> (f64, f64) {
+pub(crate) fn turn(v: (f64, f64), yaw: f64) -> (f64, f64) {
     let (s, c) = yaw.sin_cos();
     (v.0 * c + v.1 * s, -v.0 * s + v.1 * c)
 }
@@ -367,7 +367,8 @@ impl Vocabulary {
     pub fn angle_bins(&self) -> UniformBins {
         UniformBins::angles(self.bins)
     }
-    fn velocity_bins(&self) -> UniformBins {
+    /// The root ground-velocity slots' bins (m/s).
+    pub fn velocity_bins(&self) -> UniformBins {
         UniformBins {
             bins: self.bins,
             lo: self.velocity_range[0],
