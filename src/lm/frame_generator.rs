@@ -483,6 +483,11 @@ impl FrameGenerator {
                 )
             },
         )?;
+        if let Some(p1) = p1.filter(|_| std::env::var_os("CHOREO_NO_FLIPS").is_none()) {
+            for f in frames.iter_mut() {
+                super::flips::finish(f, p1, forced, (c.slots, c.bins));
+            }
+        }
         Ok(frames
             .into_iter()
             .zip(scores)

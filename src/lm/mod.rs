@@ -22,6 +22,7 @@ pub mod duet;
 pub mod embed;
 pub mod engine;
 pub mod exemplars;
+mod flips;
 pub mod frame;
 mod frame_draw;
 pub mod frame_generator;
