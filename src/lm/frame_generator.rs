@@ -483,7 +483,9 @@ impl FrameGenerator {
                 )
             },
         )?;
-        if let Some(p1) = p1.filter(|_| std::env::var_os("CHOREO_NO_FLIPS").is_none()) {
+        // A joint that went round the half-turn edge in one slot only
+        // gets the whole flip (docs/RESULTS.md, "Session 45").
+        if let Some(p1) = p1 {
             for f in frames.iter_mut() {
                 super::flips::finish(f, p1, forced, (c.slots, c.bins));
             }
