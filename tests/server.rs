@@ -1103,11 +1103,12 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         // there is a pull.
         let ease = if posture > 0.0 { 1.0 } else { 0.0 };
         assert_eq!(s["ease"].as_f64(), Some(ease), "{labels}: {s}");
-        // A style request follows the style's real takes (matching 6),
-        // where the bundled exemplars hold takes of every asked-for label:
-        // none hold a Bandai style and an AIST++ genre at once, so that
-        // request runs without (and is not refused).
-        let matching = if labels.get("style").is_some() && labels.get("genre").is_none() {
+        // A style or content request follows the label's real takes
+        // (matching 6), where the bundled exemplars hold takes of every
+        // asked-for label: none hold a Bandai style and an AIST++ genre at
+        // once, so that request runs without (and is not refused).
+        let bandai = labels.get("style").is_some() || labels.get("content").is_some();
+        let matching = if bandai && labels.get("genre").is_none() {
             6.0
         } else {
             0.0
@@ -1151,7 +1152,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         assert_eq!(s.jerk, jerk, "{kind}");
         // The answer spells "none" as a request does (negative).
         assert_eq!(s.ease, 1.0, "{kind}");
-        let matching = if kind == "style" { 6.0 } else { -1.0 };
+        let matching = if kind == "genre" { -1.0 } else { 6.0 };
         assert_eq!(s.matching, matching, "{kind}");
     }
 

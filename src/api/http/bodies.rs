@@ -219,11 +219,12 @@ pub struct SamplingJson {
     /// model's default for the label kinds asked for where there is a
     /// pull, else off.
     pub ease: Option<f64>,
-    /// How strongly each joint follows the asked-for labels' real takes
-    /// (motion matching: the nearest real frame's successor as a target;
-    /// frame model, with labels; the posture pull then holds only the
-    /// body's tilt; 0 = off); absent = the model's default for the label
-    /// kinds asked for (the bundled model: 6 for a style) where the model
+    /// How strongly each joint, and the root's ground velocity, follow the
+    /// asked-for labels' real takes (motion matching: the nearest real
+    /// frame's successor as a target; frame model, with labels; the
+    /// posture pull then holds only the body's tilt; 0 = off); absent = the
+    /// model's default for the label kinds asked for (the bundled model: 6
+    /// for a style or a content) where the model
     /// has real takes of every asked-for label, else off.
     pub matching: Option<f64>,
 }
