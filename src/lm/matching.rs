@@ -103,7 +103,8 @@ fn turns(from: &[Quat], to: &[Quat]) -> Vec<Quat> {
 /// Whether slot `s` of `slots` is matched and pulled: the slots the label
 /// postures pull, a joint angle (not the root's rotation, whose heading
 /// any take may choose) or the root's height; not the root's ground
-/// velocity (world-frame travel).
+/// velocity, which a take carries in its own heading and which follows
+/// through [`Library::travelling`] instead.
 pub fn followed(s: usize, slots: usize) -> bool {
     super::posture::pulled(s, slots)
 }
