@@ -487,7 +487,7 @@ impl FrameGenerator {
         // gets the whole flip (docs/RESULTS.md, "Session 45").
         if let Some(p1) = p1 {
             for f in frames.iter_mut() {
-                super::flips::finish(f, p1, forced, (c.slots, c.bins));
+                super::flips::finish(f, p1, forced, (c.slots, c.bins, sampling.max_jump));
             }
         }
         Ok(frames

@@ -23,7 +23,7 @@
 use super::exemplars::Exemplars;
 use super::frame::{short_step, slot_wraps as wraps};
 use crate::motion::rotation::{
-    axis_angle_to_quat, quat_conj, quat_mul, quat_to_axis_angle, slerp, Quat,
+    axis_angle_to_quat, geodesic_quat, quat_conj, quat_mul, quat_to_axis_angle, slerp, Quat,
 };
 use crate::motion::Labels;
 use crate::tokenize::vocab::{heading_of, turn};
@@ -111,8 +111,7 @@ pub fn followed(s: usize, slots: usize) -> bool {
 
 /// The angle between two rotations, in bins of `width` radians.
 fn apart(a: Quat, b: Quat, width: f64) -> f64 {
-    let d = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]).abs();
-    2.0 * d.min(1.0).acos() / width
+    geodesic_quat(a, b) / width
 }
 
 impl Library {
