@@ -54,9 +54,10 @@ pub struct ServeConfig {
     /// classify answer 503; a broken model stops start-up.
     #[arg(long, env = "CHOREO_MODEL", default_value = "models/default")]
     pub model: PathBuf,
-    /// Which runtime runs the models: tract (built in) or ort (onnxruntime;
+    /// Which runtime runs the models: tract (built in), ort (onnxruntime;
     /// needs a build with the `onnxruntime` feature and the library from
-    /// the onnxruntime pip wheel, at --ort-lib or ORT_DYLIB_PATH).
+    /// the onnxruntime pip wheel, at --ort-lib or ORT_DYLIB_PATH), or auto
+    /// (ort where that library loads, else tract; the log says which).
     #[arg(long, env = "CHOREO_RUNTIME", default_value = "tract")]
     pub runtime: crate::lm::engine::Runtime,
     /// The onnxruntime shared library for --runtime ort (default:
@@ -255,8 +256,17 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     )
     .await?
     .with_channel_cache(cfg.channel_cache_mb << 20);
-    let engine = crate::lm::engine::Engine::new(cfg.runtime, cfg.ort_lib.as_deref())?;
-    tracing::info!("model runtime: {}", cfg.runtime.name());
+    let engine = match cfg.runtime {
+        crate::lm::engine::Runtime::Auto => {
+            let (e, why) = crate::lm::engine::Engine::auto(cfg.ort_lib.as_deref());
+            if let Some(why) = why {
+                tracing::info!("--runtime auto: tract, as onnxruntime is not available ({why})");
+            }
+            e
+        }
+        r => crate::lm::engine::Engine::new(r, cfg.ort_lib.as_deref())?,
+    };
+    tracing::info!("model runtime: {}", engine.runtime().name());
     let model = if cfg.model.exists() {
         let t0 = std::time::Instant::now();
         let m = crate::lm::model::MotionModel::load_with(&cfg.model, &engine)

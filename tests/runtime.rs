@@ -86,7 +86,7 @@ fn missing_or_bad_libraries_are_clear_errors() {
     );
     assert_eq!("ort".parse::<Runtime>().unwrap(), Runtime::Ort);
     let e = "cuda".parse::<Runtime>().unwrap_err();
-    assert!(e.contains("tract or ort"), "{e}");
+    assert!(e.contains("tract, ort or auto"), "{e}");
     if cfg!(feature = "onnxruntime") {
         // A file that is not a shared library.
         let junk = tempfile::NamedTempFile::new().unwrap();
@@ -99,6 +99,33 @@ fn missing_or_bad_libraries_are_clear_errors() {
         let e = Engine::new(Runtime::Ort, None).unwrap_err().to_string();
         assert!(e.contains("onnxruntime"), "{e}");
     }
+}
+
+#[test]
+fn auto_takes_onnxruntime_where_its_library_loads_else_tract() {
+    assert_eq!("auto".parse::<Runtime>().unwrap(), Runtime::Auto);
+    let bad = std::path::Path::new("/no/such/libonnxruntime.so");
+    let (e, why) = Engine::auto(Some(bad));
+    assert_eq!(e.runtime(), Runtime::Tract);
+    let why = why.expect("the reason onnxruntime was passed over");
+    assert!(why.contains("onnxruntime"), "{why}");
+    if cfg!(feature = "onnxruntime") {
+        assert!(why.contains("/no/such/libonnxruntime.so"), "{why}");
+    }
+    // Engine::new resolves the choice the same way, and never fails on it.
+    let e = Engine::new(Runtime::Auto, Some(bad)).unwrap();
+    assert_eq!(e.runtime(), Runtime::Tract);
+    let Some(p) = ort_lib() else {
+        return;
+    };
+    if ort_engine().is_none() {
+        return;
+    }
+    let (e, why) = Engine::auto(Some(&p));
+    assert_eq!((e.runtime(), why), (Runtime::Ort, None));
+    let bundled = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default");
+    let m = MotionModel::load_with(&bundled, &e).unwrap();
+    assert_eq!(m.kind(), "motion-frame-lm");
 }
 
 #[test]

@@ -27,6 +27,10 @@ fn rt(e: impl std::fmt::Display) -> LmError {
 pub enum Runtime {
     Tract,
     Ort,
+    /// A choice, not an engine's runtime: onnxruntime where its library
+    /// loads (a build with the `onnxruntime` feature, --ort-lib or
+    /// ORT_DYLIB_PATH), else tract ([`Engine::new`] says why).
+    Auto,
 }
 
 impl Runtime {
@@ -34,6 +38,7 @@ impl Runtime {
         match self {
             Runtime::Tract => "tract",
             Runtime::Ort => "ort",
+            Runtime::Auto => "auto",
         }
     }
 }
@@ -44,7 +49,10 @@ impl std::str::FromStr for Runtime {
         match s {
             "tract" => Ok(Runtime::Tract),
             "ort" | "onnxruntime" => Ok(Runtime::Ort),
-            other => Err(format!("unknown runtime {other:?}: expected tract or ort")),
+            "auto" => Ok(Runtime::Auto),
+            other => Err(format!(
+                "unknown runtime {other:?}: expected tract, ort or auto"
+            )),
         }
     }
 }
@@ -292,6 +300,17 @@ impl Engine {
         match runtime {
             Runtime::Tract => Ok(Engine::tract()),
             Runtime::Ort => Engine::ort(lib),
+            Runtime::Auto => Ok(Engine::auto(lib).0),
+        }
+    }
+
+    /// `Runtime::Auto`: onnxruntime (the faster on this kind of machine,
+    /// bench/RESULTS.md "Model runtime") where its library loads, else
+    /// tract, with the reason onnxruntime was passed over.
+    pub fn auto(lib: Option<&Path>) -> (Engine, Option<String>) {
+        match Engine::ort(lib) {
+            Ok(e) => (e, None),
+            Err(e) => (Engine::tract(), Some(e.to_string())),
         }
     }
 
@@ -321,7 +340,8 @@ impl Engine {
         let bad = |e: String| LmError::invalid(spec.file, "graph", e);
         let batch = spec.batch.filter(|s| has_batch(bytes, s));
         match self.runtime {
-            Runtime::Tract => {
+            // An engine's runtime is never Auto (Engine::new resolves it).
+            Runtime::Tract | Runtime::Auto => {
                 let model = tract_onnx::onnx()
                     .model_for_read(&mut std::io::Cursor::new(bytes))
                     .map_err(|e| bad(e.to_string()))?;
