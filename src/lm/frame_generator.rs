@@ -532,7 +532,7 @@ fn slot_token(
             // only; the postures keep the rest (the root's tilt).
             let offsets = match follow.and_then(|f| f[s].as_deref()) {
                 Some(m) => Some(std::borrow::Cow::Borrowed(m)),
-                None => pull.map(|p| p.slot(s, frame)),
+                None => pull.map(|p| p.slot(s, frame, Some((c.radius, sampling.max_jump)))),
             };
             let t = super::frame_draw::draw(
                 sampling,

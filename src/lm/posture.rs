@@ -452,7 +452,15 @@ impl<'a> FramePull<'a> {
     /// the axis-angle made of that bin, the components this frame has
     /// drawn (`drawn[..s]`) and the previous frame's for the rest (zero
     /// without one); otherwise the slot's fixed offsets.
-    pub fn slot(&self, s: usize, drawn: &[u32]) -> Cow<'a, [f32]> {
+    ///
+    /// `read`: the frame generator's change radius and `max_jump`. With a
+    /// previous frame, a draw reads a root component's offsets only in
+    /// the change window (within the radius of the previous bin) and
+    /// where an escape may land (within `max_jump` of it, the shorter way
+    /// round; anywhere when it is 0: `frame_draw::draw`), so the tilt is
+    /// worked out only there; the other bins keep the fixed offsets,
+    /// which no draw reads.
+    pub fn slot(&self, s: usize, drawn: &[u32], read: Option<(usize, u32)>) -> Cow<'a, [f32]> {
         let pl: &'a Pull = self.pull;
         if s >= 3 && !self.resp.is_empty() {
             let mut out: Vec<f32> = pl.plain[s].iter().map(|x| x * self.scale).collect();
@@ -480,9 +488,25 @@ impl<'a> FramePull<'a> {
             };
             *a = b.map_or(0.0, |&b| pl.angles.decode(b));
         }
+        let bins = pl.angles.bins as i64;
+        let window = match (read, self.prev.and_then(|p| p.get(s))) {
+            (Some((r0, jump)), Some(&p)) if jump > 0 => Some((p as i64, r0 as i64, jump as i64)),
+            _ => None,
+        };
+        let circular = wraps(s, pl.offsets.len());
+        let read_bin = |b: i64| match window {
+            None => true,
+            Some((p, r0, jump)) => {
+                let d = (b - p).abs();
+                d <= r0 || (if circular { d.min(bins - d) } else { d }) <= jump
+            }
+        };
         Cow::Owned(
             (0..pl.angles.bins)
                 .map(|b| {
+                    if !read_bin(b as i64) {
+                        return pl.offsets[s][b] * self.scale;
+                    }
                     aa[s] = pl.angles.decode(b as u32);
                     let t = up_tilt_degrees(aa);
                     let x: f64 = pl
