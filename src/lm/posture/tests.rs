@@ -102,22 +102,28 @@ fn pose_clusters_split_a_label_and_the_pull_follows_the_previous_frame() {
     let pull = p.pull(&labels, 1.0).unwrap();
     let mut prev = vec![0u32; slots];
     // Without a previous frame: the label's one mean pose (bin 40).
-    assert_eq!(peak(&pull.for_frame(None, 1.0).slot(3, &[])), 40);
+    assert_eq!(peak(&pull.for_frame(None, 1.0).slot(3, &[], None)), 40);
     // A previous frame in either cluster: that cluster's pose.
     prev[3] = 12;
-    assert_eq!(peak(&pull.for_frame(Some(&prev), 1.0).slot(3, &[])), 10);
+    assert_eq!(
+        peak(&pull.for_frame(Some(&prev), 1.0).slot(3, &[], None)),
+        10
+    );
     prev[3] = 97;
-    assert_eq!(peak(&pull.for_frame(Some(&prev), 1.0).slot(3, &[])), 100);
+    assert_eq!(
+        peak(&pull.for_frame(Some(&prev), 1.0).slot(3, &[], None)),
+        100
+    );
     // Halfway, both clusters pull: the peak lies between them.
     prev[3] = 55;
-    let mid = peak(&pull.for_frame(Some(&prev), 1.0).slot(3, &[]));
+    let mid = peak(&pull.for_frame(Some(&prev), 1.0).slot(3, &[], None));
     assert!((10..=100).contains(&mid), "{mid}");
     // The weight scales the offsets.
     let pull2 = p.pull(&labels, 2.0).unwrap();
     prev[3] = 12;
     let (a, b) = (
-        pull.for_frame(Some(&prev), 1.0).slot(3, &[]),
-        pull2.for_frame(Some(&prev), 1.0).slot(3, &[]),
+        pull.for_frame(Some(&prev), 1.0).slot(3, &[], None),
+        pull2.for_frame(Some(&prev), 1.0).slot(3, &[], None),
     );
     assert!(
         (b[200] - 2.0 * a[200]).abs() < 1e-3 * a[200].abs(),
@@ -139,25 +145,28 @@ fn pose_clusters_split_a_label_and_the_pull_follows_the_previous_frame() {
         .into_iter()
         .collect();
     let pw = p.pull(&wave, 1.0).unwrap();
-    assert_eq!(peak(&pw.for_frame(Some(&prev), 1.0).slot(4, &[])), 200);
+    assert_eq!(
+        peak(&pw.for_frame(Some(&prev), 1.0).slot(4, &[], None)),
+        200
+    );
     for s in [3, 4] {
         let (b, w, h) = (
-            pb.for_frame(Some(&prev), 1.0).slot(s, &[]),
-            pw.for_frame(Some(&prev), 1.0).slot(s, &[]),
-            pull.for_frame(Some(&prev), 1.0).slot(s, &[]),
+            pb.for_frame(Some(&prev), 1.0).slot(s, &[], None),
+            pw.for_frame(Some(&prev), 1.0).slot(s, &[], None),
+            pull.for_frame(Some(&prev), 1.0).slot(s, &[], None),
         );
         for i in 0..360 {
             assert!((b[i] - (w[i] + h[i])).abs() < 1e-4, "slot {s} bin {i}");
         }
     }
-    assert_eq!(peak(&pb.for_frame(Some(&prev), 1.0).slot(3, &[])), 10);
+    assert_eq!(peak(&pb.for_frame(Some(&prev), 1.0).slot(3, &[], None)), 10);
     // A frame's scale (sampling.ease) scales every slot's offsets: the
     // clustered and the unclustered labels', with a previous frame or not.
     for prev in [None, Some(&prev[..])] {
         for s in [3, 4] {
             let (whole, half) = (
-                pb.for_frame(prev, 1.0).slot(s, &[]),
-                pb.for_frame(prev, 0.5).slot(s, &[]),
+                pb.for_frame(prev, 1.0).slot(s, &[], None),
+                pb.for_frame(prev, 0.5).slot(s, &[], None),
             );
             for i in 0..360 {
                 assert!((half[i] - 0.5 * whole[i]).abs() < 1e-4, "slot {s} bin {i}");
@@ -185,4 +194,51 @@ fn circular_mean_and_spread_go_the_short_way_round() {
     let plain = slot_stat([10.0, 20.0, 30.0].into_iter(), 360.0, false);
     assert!((plain.mean - 20.0).abs() < 1e-12);
     assert!((plain.spread - (200.0_f64 / 3.0).sqrt()).abs() < 1e-9);
+}
+
+#[test]
+fn the_tilt_is_worked_out_where_a_draw_reads_it_and_the_same_there() {
+    let slots = 8;
+    let mut p = two_cluster_postures(slots);
+    p.tilt = BTreeMap::from([(
+        "style".to_string(),
+        BTreeMap::from([(
+            "happy".to_string(),
+            SlotStat {
+                mean: 20.0,
+                spread: 5.0,
+            },
+        )]),
+    )]);
+    let labels: Labels = [("style".to_string(), "happy".to_string())]
+        .into_iter()
+        .collect();
+    let pull = p.pull(&labels, 1.0).unwrap();
+    // The previous frame's root near bin 0 (the angle's low edge) and mid-range.
+    for first in [2u32, 190] {
+        let mut prev = vec![180u32; slots];
+        prev[0] = first;
+        let fp = pull.for_frame(Some(&prev), 1.0);
+        let all = fp.slot(0, &[], None);
+        // Radius 5, max_jump 3: the window is 5 bins either side, round the edge.
+        let read = fp.slot(0, &[], Some((5, 3)));
+        let mut differ = 0;
+        for b in 0..360i64 {
+            let d = (b - first as i64).abs();
+            if d <= 5 || d.min(360 - d) <= 3 {
+                assert_eq!(all[b as usize], read[b as usize], "bin {b}");
+            } else if all[b as usize] != read[b as usize] {
+                differ += 1;
+            }
+        }
+        assert!(
+            differ > 300,
+            "{differ} bins outside the window skip the tilt"
+        );
+        // max_jump 0: an escape may land anywhere, so every bin is worked out.
+        assert_eq!(fp.slot(0, &[], Some((5, 0))), all);
+    }
+    // A clip's first frame: every bin.
+    let fp = pull.for_frame(None, 1.0);
+    assert_eq!(fp.slot(0, &[], Some((5, 3))), fp.slot(0, &[], None));
 }
