@@ -6,9 +6,9 @@
 
 # The image runs either model runtime, built with the `onnxruntime` feature
 # and the library of the onnxruntime wheel copied in below (ORT_DYLIB_PATH):
-# `auto` (the default) takes onnxruntime, the faster here (a labelled frame
-# 4.6 against tract's 13.1 ms), and falls back to tract, saying why, where
-# that library does not load; `-e CHOREO_RUNTIME=tract` or `=ort` pins one.
+# `auto` (the default) takes onnxruntime, the faster of the two (README,
+# "The model runtime"), and falls back to tract, saying why, where that
+# library does not load; `-e CHOREO_RUNTIME=tract` or `=ort` pins one.
 
 # --- onnxruntime's library, from the pip wheel ------------------------------
 FROM python:3.11-slim-bookworm AS ortlib

@@ -256,16 +256,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     )
     .await?
     .with_channel_cache(cfg.channel_cache_mb << 20);
-    let engine = match cfg.runtime {
-        crate::lm::engine::Runtime::Auto => {
-            let (e, why) = crate::lm::engine::Engine::auto(cfg.ort_lib.as_deref());
-            if let Some(why) = why {
-                tracing::info!("--runtime auto: tract, as onnxruntime is not available ({why})");
-            }
-            e
-        }
-        r => crate::lm::engine::Engine::new(r, cfg.ort_lib.as_deref())?,
-    };
+    let engine = crate::lm::engine::Engine::new(cfg.runtime, cfg.ort_lib.as_deref())?;
     tracing::info!("model runtime: {}", engine.runtime().name());
     let model = if cfg.model.exists() {
         let t0 = std::time::Instant::now();

@@ -300,7 +300,15 @@ impl Engine {
         match runtime {
             Runtime::Tract => Ok(Engine::tract()),
             Runtime::Ort => Engine::ort(lib),
-            Runtime::Auto => Ok(Engine::auto(lib).0),
+            Runtime::Auto => {
+                let (e, why) = Engine::auto(lib);
+                if let Some(why) = why {
+                    tracing::info!(
+                        "--runtime auto: tract, as onnxruntime is not available ({why})"
+                    );
+                }
+                Ok(e)
+            }
         }
     }
 

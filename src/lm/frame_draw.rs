@@ -41,10 +41,7 @@ pub(super) fn draw(
     // only under a limit below r0; the escape only when no bin outside the
     // window is reachable.
     let jump = sampling.max_jump as i64;
-    let reach = |b: i64| {
-        let d = (b - p as i64).abs();
-        jump == 0 || if wraps { d.min(bins - d) } else { d } <= jump
-    };
+    let reach = |b: i64| within_jump(b, p as i64, jump, bins, wraps);
     let outside = |b: i64| (b - p as i64).abs() > r0 && reach(b);
     let moved;
     let rel = match pull {
@@ -96,6 +93,20 @@ pub(super) fn draw(
         }
     }
     sampling.draw(&masked, rng) as u32
+}
+
+/// Whether bin `b` is within `jump` bins of `p` (0: no limit), the
+/// shorter way round for a slot that `wraps`.
+fn within_jump(b: i64, p: i64, jump: i64, bins: i64, wraps: bool) -> bool {
+    let d = (b - p).abs();
+    jump == 0 || if wraps { d.min(bins - d) } else { d } <= jump
+}
+
+/// Whether [`draw`] can read bin `b`'s pull offset for a slot whose last
+/// bin was `p`: in the change window (within `r0`), or where an escape
+/// may land (within `jump`; anywhere when it is 0).
+pub(super) fn reads_bin(b: i64, p: i64, (r0, jump): (i64, i64), bins: i64, wraps: bool) -> bool {
+    (b - p).abs() <= r0 || within_jump(b, p, jump, bins, wraps)
 }
 
 /// The pull's offset to the escape class: ln Σ q(b) e^{u(b)} over the bins

@@ -488,18 +488,13 @@ impl<'a> FramePull<'a> {
             };
             *a = b.map_or(0.0, |&b| pl.angles.decode(b));
         }
-        let bins = pl.angles.bins as i64;
-        let window = match (read, self.prev.and_then(|p| p.get(s))) {
-            (Some((r0, jump)), Some(&p)) if jump > 0 => Some((p as i64, r0 as i64, jump as i64)),
-            _ => None,
-        };
-        let circular = wraps(s, pl.offsets.len());
-        let read_bin = |b: i64| match window {
-            None => true,
-            Some((p, r0, jump)) => {
-                let d = (b - p).abs();
-                d <= r0 || (if circular { d.min(bins - d) } else { d }) <= jump
+        let (bins, circular) = (pl.angles.bins as i64, wraps(s, pl.offsets.len()));
+        let last = self.prev.and_then(|p| p.get(s));
+        let read_bin = |b: i64| match (read, last) {
+            (Some((r0, jump)), Some(&p)) => {
+                super::frame_draw::reads_bin(b, p as i64, (r0 as i64, jump as i64), bins, circular)
             }
+            _ => true,
         };
         Cow::Owned(
             (0..pl.angles.bins)
