@@ -1864,3 +1864,34 @@ fn an_older_local_graph_draws_candidates_one_at_a_time_until_upgraded() {
         .chunks(fl)
         .all(|f| f[..fl - 1].iter().all(|&t| (t as usize) < v.bins)));
 }
+
+/// The bundled frame model's local graph is as this exporter writes it
+/// (`choreo-train upgrade-frame` leaves it alone), and its weights read
+/// back from the graph (the fused query/key/value layers split) are the
+/// ones the local graph holds: re-exporting them gives the same bytes.
+#[test]
+fn the_bundled_local_graph_is_as_the_exporter_writes_it() {
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default");
+    let dir = tempfile::tempdir().unwrap();
+    for e in std::fs::read_dir(&src).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), dir.path().join(e.file_name())).unwrap();
+    }
+    assert!(
+        frame_export::upgrade_local(dir.path()).unwrap().is_none(),
+        "models/default/local.onnx is not as the exporter writes it: run `choreo-train upgrade-frame --model models/default`"
+    );
+    let c = choreo::lm::frame_runtime::FrameSession::load(dir.path())
+        .unwrap()
+        .config()
+        .clone();
+    let d = c.d_local;
+    let t = frame_export::graph_weights(&dir.path().join("local.onnx"), &Device::Cpu).unwrap();
+    for l in 0..c.local_layers {
+        for p in ["q", "k", "v"] {
+            assert_eq!(t[&format!("l{l}.{p}.w")].dims(), &[d, d]);
+            assert_eq!(t[&format!("l{l}.{p}.b")].dims(), &[d]);
+        }
+        assert!(!t.contains_key(&format!("l{l}.qkv.w")));
+    }
+}

@@ -135,6 +135,24 @@ impl Builder {
         });
         o
     }
+    /// Adds a node with several outputs, named `outs`.
+    pub(crate) fn ops(
+        &mut self,
+        op: &str,
+        inputs: &[&str],
+        attrs: Vec<AttributeProto>,
+        outs: &[&str],
+    ) {
+        self.count += 1;
+        self.nodes.push(NodeProto {
+            input: inputs.iter().map(|s| s.to_string()).collect(),
+            output: outs.iter().map(|s| s.to_string()).collect(),
+            name: format!("n{}_{op}", self.count),
+            op_type: op.into(),
+            attribute: attrs,
+            ..Default::default()
+        });
+    }
     pub(crate) fn f32(&mut self, name: &str, dims: &[usize], data: Vec<f32>) -> String {
         self.inits.push(TensorProto {
             dims: dims.iter().map(|&d| d as i64).collect(),
@@ -196,16 +214,28 @@ impl Builder {
         self.op("Add", &[&m, &format!("{pre}.b")], vec![], None)
     }
 
-    /// GELU, erf form: 0.5 · x · (1 + erf(x / √2)).
+    /// `x · pre.w + pre.b` as one `Gemm` (`x` a matrix: one row each).
+    pub(crate) fn gemm(&mut self, x: &str, pre: &str) -> String {
+        self.op(
+            "Gemm",
+            &[x, &format!("{pre}.w"), &format!("{pre}.b")],
+            vec![],
+            None,
+        )
+    }
+
+    /// GELU, erf form: (x · (1 + erf(x / √2))) · 0.5, written in the
+    /// order onnxruntime's GELU fusion recognises (it then runs one
+    /// operation where this writes five).
     pub(crate) fn gelu(&mut self, x: &str) -> String {
         let half = self.scalar("half", 0.5);
         let one = self.scalar("one", 1.0);
-        let inv_sqrt2 = self.scalar("inv_sqrt2", std::f32::consts::FRAC_1_SQRT_2);
-        let e = self.op("Mul", &[x, &inv_sqrt2], vec![], None);
+        let sqrt2 = self.scalar("sqrt2", std::f32::consts::SQRT_2);
+        let e = self.op("Div", &[x, &sqrt2], vec![], None);
         let e = self.op("Erf", &[&e], vec![], None);
         let e = self.op("Add", &[&e, &one], vec![], None);
-        let hf = self.op("Mul", &[x, &half], vec![], None);
-        self.op("Mul", &[&hf, &e], vec![], None)
+        let e = self.op("Mul", &[x, &e], vec![], None);
+        self.op("Mul", &[&e, &half], vec![], None)
     }
 
     /// Queries, keys and values of a pre-LN block, `[B, H, T, dh]` each.

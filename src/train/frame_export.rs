@@ -5,7 +5,7 @@
 //! position's keys and values; the runtime writes them into its caches in
 //! place.
 
-use super::export::{attr_i, value_info, Builder, DataType};
+use super::export::{attr_i, attr_ints, value_info, Builder, DataType};
 use super::frame::FrameNet;
 use crate::lm::frame::{
     global_inputs, global_outputs, local_inputs, local_outputs, FrameConfig, FrameManifest,
@@ -24,7 +24,10 @@ fn gather(g: &mut Builder, table: &str, ids: &str) -> String {
 
 /// Pre-LN blocks `{pre}{l}` over `x: [1, 1, d]` with cached keys/values
 /// (`cache_k_{l}` `[1, H, C, dh]`) and the `bias` input; names the new
-/// keys/values `k_{l}`, `v_{l}`.
+/// keys/values `k_{l}`, `v_{l}`. The global step's form: it runs once or
+/// twice a frame, so its operation count matters less than the local
+/// step's (once a slot, [`row_blocks`]), and `fit-heads` edits its head
+/// nodes as written here.
 fn cached_blocks(
     g: &mut Builder,
     x: &str,
@@ -57,6 +60,141 @@ fn cached_blocks(
         let o = g.lin(&att, &n("o"));
         x = g.op("Add", &[&x, &o], vec![], None);
         x = g.mlp_residual(&x, &n, eps);
+    }
+    x
+}
+
+/// A block's query, key and value weights as one linear layer in a graph:
+/// `{block}.qkv.w` (`[d, 3d]`, the three side by side) and `.b`.
+const QKV: &str = "qkv";
+
+/// Fuses the query/key/value weights of the blocks `{pre}0..layers` in
+/// `w` into one layer each (the form [`row_blocks`] reads).
+fn fuse_qkv(
+    w: &mut BTreeMap<String, candle_core::Tensor>,
+    pre: &str,
+    layers: usize,
+) -> anyhow::Result<()> {
+    for l in 0..layers {
+        for (part, dim) in [("w", 1), ("b", 0)] {
+            let mut three = Vec::with_capacity(3);
+            for p in ["q", "k", "v"] {
+                let name = format!("{pre}{l}.{p}.{part}");
+                three.push(
+                    w.remove(&name)
+                        .ok_or_else(|| anyhow::anyhow!("no weight {name} to export"))?,
+                );
+            }
+            w.insert(
+                format!("{pre}{l}.{QKV}.{part}"),
+                candle_core::Tensor::cat(&three, dim)?,
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The float weights of an exported frame graph by the trainer's names:
+/// its initialisers, each fused query/key/value layer split back into
+/// `q`, `k`, `v` (exactly: the fused layer is the three side by side).
+pub fn graph_weights(
+    path: &Path,
+    dev: &candle_core::Device,
+) -> anyhow::Result<BTreeMap<String, candle_core::Tensor>> {
+    let mut t = super::export::float_initializers(path, dev)?;
+    let fused: Vec<String> = t
+        .keys()
+        .filter(|k| k.ends_with(&format!(".{QKV}.w")) || k.ends_with(&format!(".{QKV}.b")))
+        .cloned()
+        .collect();
+    for name in fused {
+        let x = t.remove(&name).expect("listed");
+        let (block, part) = name
+            .rsplit_once(&format!(".{QKV}."))
+            .expect("listed by its suffix");
+        let dim = if part == "w" { 1 } else { 0 };
+        let n = x.dim(dim)?;
+        if n % 3 != 0 {
+            anyhow::bail!("{}: {name} is {n} wide, not three layers", path.display());
+        }
+        for (i, p) in ["q", "k", "v"].iter().enumerate() {
+            t.insert(
+                format!("{block}.{p}.{part}"),
+                x.narrow(dim, i * n / 3, n / 3)?.contiguous()?,
+            );
+        }
+    }
+    Ok(t)
+}
+
+/// Pre-LN blocks `{pre}{l}` over one position per row, `x: [B, d]` (a
+/// step: every row at the same position, e.g. candidate frames at one
+/// slot), with cached keys/values (`cache_k_{l}` `[B, H, C, dh]`) and the
+/// `bias` input (`[1, C + 1]`); the new keys/values are the outputs `k_{l}`,
+/// `v_{l}` (`[B, H, 1, dh]`). Written for a runtime that pays for every
+/// operation it runs (onnxruntime's cost at this size is mostly per
+/// node): each linear layer is one `Gemm` over the rows, the query, key
+/// and value one product (weights fused by [`fuse_qkv`]) cut into heads by
+/// a reshape and a split.
+fn row_blocks(
+    g: &mut Builder,
+    x: &str,
+    pre: &str,
+    layers: usize,
+    d: usize,
+    heads: usize,
+    eps: f32,
+) -> String {
+    let (d, h, dh) = (d as i64, heads as i64, (d / heads) as i64);
+    let qkv_shape = g.i64("shape_qkv", &[0, 3 * h, 1, dh]);
+    let split = g.i64("split_qkv", &[h, h, h]);
+    let row = g.i64("shape_row", &[0, d]);
+    let scale = g.scalar("attn_scale", 1.0 / (dh as f32).sqrt());
+    let mut x = x.to_string();
+    for l in 0..layers {
+        let n = |s: &str| format!("{pre}{l}.{s}");
+        let a = g.ln(&x, &n("ln1"), eps);
+        let qkv = g.gemm(&a, &n(QKV));
+        let qkv = g.op("Reshape", &[&qkv, &qkv_shape], vec![], None);
+        let (q, k, v) = (n("q_heads"), format!("k_{l}"), format!("v_{l}"));
+        g.ops(
+            "Split",
+            &[&qkv, &split],
+            vec![attr_i("axis", 1)],
+            &[&q, &k, &v],
+        );
+        let kc = g.op(
+            "Concat",
+            &[&format!("cache_k_{l}"), &k],
+            vec![attr_i("axis", 2)],
+            None,
+        );
+        let vc = g.op(
+            "Concat",
+            &[&format!("cache_v_{l}"), &v],
+            vec![attr_i("axis", 2)],
+            None,
+        );
+        let kt = g.op(
+            "Transpose",
+            &[&kc],
+            vec![attr_ints("perm", &[0, 1, 3, 2])],
+            None,
+        );
+        let s = g.op("MatMul", &[&q, &kt], vec![], None);
+        let s = g.op("Mul", &[&s, &scale], vec![], None);
+        let s = g.op("Add", &[&s, "bias"], vec![], None);
+        let p = g.op("Softmax", &[&s], vec![attr_i("axis", -1)], None);
+        let att = g.op("MatMul", &[&p, &vc], vec![], None);
+        // [B, H, 1, dh] is already the heads side by side in a row.
+        let att = g.op("Reshape", &[&att, &row], vec![], None);
+        let o = g.gemm(&att, &n("o"));
+        x = g.op("Add", &[&x, &o], vec![], None);
+        let m = g.ln(&x, &n("ln2"), eps);
+        let f = g.gemm(&m, &n("fc1"));
+        let f = g.gelu(&f);
+        let f = g.gemm(&f, &n("fc2"));
+        x = g.op("Add", &[&x, &f], vec![], None);
     }
     x
 }
@@ -176,7 +314,8 @@ pub fn global_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
     Ok(g.model("choreo_frame_global", inputs, outputs))
 }
 
-/// The local step graph.
+/// The local step graph: the rows of `batch` candidate frames at one
+/// slot, in [`row_blocks`]' form.
 pub fn local_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
     let c = &net.cfg;
     let mut g = Builder::default();
@@ -186,22 +325,21 @@ pub fn local_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
             w.insert(k, v);
         }
     }
+    fuse_qkv(&mut w, "l", c.local_layers)?;
     g.weights(w)?;
     let eps = c.ln_eps as f32;
-    let x = g.lin("ctx", "l_ctx");
-    let mut x = x;
+    let mut terms = vec![g.gemm("ctx", "l_ctx")];
     for (table, ids) in [
         ("l_in", "inp"),
         ("l_vel", "vel"),
         ("l_prev", "prev"),
         ("l_pos", "slot"),
     ] {
-        let e = gather(&mut g, table, ids);
-        x = g.op("Add", &[&x, &e], vec![], None);
+        terms.push(gather(&mut g, table, ids));
     }
-    let shape = g.i64("shape_one", &[-1, 1, c.d_local as i64]);
-    let x = g.op("Reshape", &[&x, &shape], vec![], None);
-    let x = cached_blocks(
+    let terms: Vec<&str> = terms.iter().map(String::as_str).collect();
+    let x = g.op("Sum", &terms, vec![], None);
+    let x = row_blocks(
         &mut g,
         &x,
         "l",
@@ -211,10 +349,11 @@ pub fn local_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
         eps,
     );
     let x = g.ln(&x, "l_ln", eps);
-    let r = g.op("MatMul", &[&x, "rel.w"], vec![], None);
-    g.op("Add", &[&r, "rel.b"], vec![], Some("rel"));
-    let a = g.op("MatMul", &[&x, "abs.w"], vec![], None);
-    g.op("Add", &[&a, "abs.b"], vec![], Some("abs"));
+    let one_row = g.i64("shape_out", &[0, 1, -1]);
+    for head in ["rel", "abs"] {
+        let y = g.gemm(&x, head);
+        g.op("Reshape", &[&y, &one_row], vec![], Some(head));
+    }
     let cap = c.slots;
     let dh = c.d_local / c.local_heads;
     let names = local_inputs(c);
@@ -340,7 +479,8 @@ pub fn parity(
 /// exporter writes it, its weights read back unchanged, and its hash in
 /// `manifest.json` (every other field kept as written): an export from
 /// before the batch dimension then decodes `sampling.draws` candidates
-/// side by side. Checks the new graph against the old one on a probe (a
+/// side by side, and one from before [`row_blocks`] runs fewer operations
+/// a step. Checks the new graph against the old one on a probe (a
 /// state after two frames, three candidate frames), one at a time and
 /// batched; returns the two largest differences of the logits. A graph
 /// already as the exporter writes it is left alone (None).
@@ -355,7 +495,7 @@ pub fn upgrade_local(dir: &Path) -> anyhow::Result<Option<(f32, f32)>> {
     let old = FrameSession::load(dir)?;
     let dev = super::device();
     let net = FrameNet::new(m.config.clone(), &dev)?;
-    let t = super::export::float_initializers(&path, &dev)?;
+    let t = graph_weights(&path, &dev)?;
     let missing = net.params.load_matching(&t, &path.display().to_string())?;
     if let Some(n) = missing
         .iter()

@@ -41,7 +41,7 @@ pub fn init_source(
             (&m.local_onnx, &m.local_sha256),
         ] {
             let (path, _) = crate::lm::manifest::read_onnx_checked(&file, &name, onnx, sha)?;
-            let got = super::export::float_initializers(&path, dev)?;
+            let got = super::frame_export::graph_weights(&path, dev)?;
             t.extend(got.into_iter().filter(|(k, _)| !k.starts_with("cls.")));
         }
         let tr = &m.training;

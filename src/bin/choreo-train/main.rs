@@ -196,11 +196,12 @@ enum Cmd {
     },
     /// Train (from scratch, from --init, or --resume) and optionally export.
     Train(Box<TrainArgs>),
-    /// Rewrite an exported frame model's local graph with the batch
-    /// dimension (its weights unchanged; the manifest's hash updated), so
+    /// Rewrite an exported frame model's local graph as this trainer
+    /// exports it (its weights unchanged; the manifest's hash updated) and
+    /// check the new graph against the old: with the batch dimension, so
     /// the candidate frames of `sampling.draws` decode side by side, and
-    /// check the new graph against the old. Models exported before the
-    /// dimension still load and draw their candidates one at a time.
+    /// one operation per linear layer (fewer operations a step). Models
+    /// exported before either still load and run as they are.
     UpgradeFrame {
         #[arg(long)]
         model: PathBuf,
@@ -399,7 +400,7 @@ fn run(cli: Cli) -> Result<()> {
                 ),
                 Some((one, side)) => {
                     println!(
-                        "{}: local graph rewritten with the batch dimension; largest logit difference from the old graph {one:.2e} (one at a time), {side:.2e} (batched)",
+                        "{}: local graph rewritten as this exporter writes it (batch dimension, one operation per linear layer); largest logit difference from the old graph {one:.2e} (one at a time), {side:.2e} (batched)",
                         model.display()
                     );
                     if one.max(side) > 1e-3 {
