@@ -502,6 +502,26 @@ impl Graph for TractBatched {
 
 struct TractState(TypedSimpleState);
 
+/// Marks the vector registers' upper halves clean (`vzeroupper`); called
+/// after every tract run. tract's AVX-512 matrix kernels return with them
+/// dirty, and until something clears them every SSE instruction that
+/// follows pays for a merge with the stale upper half: this crate is built
+/// for baseline x86-64, so all of choreo's drawing, scoring and posture
+/// work between two steps ran slowed. On the bundled frame model the
+/// labelled default's frame on tract went from 11.8–12.0 to 8.9–9.6 ms
+/// p50 with this one instruction (bench/RESULTS.md, "tract's dirty upper
+/// registers"). onnxruntime returns with them clean.
+#[inline]
+pub(crate) fn clean_upper_state() {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU has AVX (checked above); `vzeroupper` only
+        // zeroes the registers' upper halves, which hold nothing live
+        // between two calls into tract.
+        unsafe { std::arch::x86_64::_mm256_zeroupper() }
+    }
+}
+
 impl GraphState for TractState {
     fn run(
         &mut self,
@@ -524,6 +544,7 @@ impl GraphState for TractState {
             }
         }
         let res = self.0.run(tv).map_err(rt)?;
+        clean_upper_state();
         // Drop the turn's values, the cache tensors' clones among them, so
         // the next in-place write to a cache does not copy it.
         self.0.reset_turn().map_err(rt)?;

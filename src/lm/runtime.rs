@@ -238,6 +238,7 @@ impl LmSession {
                     inputs.push(v.into_tvalue());
                 }
                 let mut out = plan.run(inputs).map_err(rt)?;
+                super::engine::clean_upper_state();
                 let mut layers = Vec::with_capacity(cfg.n_layers);
                 let rest: Vec<TValue> = out.drain(1 + nk..).collect();
                 let mut it = rest.into_iter();
