@@ -503,14 +503,16 @@ impl Graph for TractBatched {
 struct TractState(TypedSimpleState);
 
 /// Marks the vector registers' upper halves clean (`vzeroupper`); called
-/// after every tract run. tract's AVX-512 matrix kernels return with them
-/// dirty, and until something clears them every SSE instruction that
-/// follows pays for a merge with the stale upper half: this crate is built
-/// for baseline x86-64, so all of choreo's drawing, scoring and posture
-/// work between two steps ran slowed. On the bundled frame model the
-/// labelled default's frame on tract went from 11.8–12.0 to 8.9–9.6 ms
-/// p50 with this one instruction (bench/RESULTS.md, "tract's dirty upper
-/// registers"). onnxruntime returns with them clean.
+/// after each operator tract runs (and after each flat-GPT step). tract's
+/// AVX-512 matrix kernels return with them dirty, and until something
+/// clears them every SSE instruction that follows pays for a merge with
+/// the stale upper half: this crate is built for baseline x86-64, so
+/// choreo's drawing, scoring and posture work between two steps, and
+/// tract's own code between two kernels, ran slowed. On the bundled frame
+/// model the labelled default's frame on tract went from 11.8–12.0 to
+/// 8.9–9.6 ms p50 cleaning after each run, 9.2–9.3 after each operator
+/// (bench/RESULTS.md, "tract's dirty upper registers"). onnxruntime
+/// returns with them clean.
 #[inline]
 pub(crate) fn clean_upper_state() {
     #[cfg(target_arch = "x86_64")]
@@ -543,11 +545,18 @@ impl GraphState for TractState {
                 tv.push(TValue::from_const(t.clone()));
             }
         }
-        let res = self.0.run(tv).map_err(rt)?;
-        clean_upper_state();
-        // Drop the turn's values, the cache tensors' clones among them, so
-        // the next in-place write to a cache does not copy it.
-        self.0.reset_turn().map_err(rt)?;
+        // Each operator as tract runs it, the upper registers cleaned after
+        // it; the turn's values (the cache tensors' clones among them) are
+        // dropped at the end, so the next in-place write to a cache does not
+        // copy it.
+        let res = self
+            .0
+            .run_plan_with_eval(tv, |ctx, st, node, input| {
+                let r = tract_onnx::tract_core::plan::eval(ctx, st, node, input);
+                clean_upper_state();
+                r
+            })
+            .map_err(rt)?;
         for (i, t) in res.iter().enumerate() {
             let data = t
                 .try_as_plain_ram()
