@@ -22,40 +22,46 @@ fn gather(g: &mut Builder, table: &str, ids: &str) -> String {
     g.op("Gather", &[table, ids], vec![attr_i("axis", 0)], None)
 }
 
+/// A stack of pre-LN transformer blocks `{pre}0..layers` of width `d`.
+struct Blocks<'a> {
+    pre: &'a str,
+    layers: usize,
+    d: usize,
+    heads: usize,
+    eps: f32,
+}
+
+/// Layer `l`'s cached keys and values with the new position's `k`, `v`
+/// appended (`cache_k_{l}`, `cache_v_{l}` along the positions axis).
+fn with_cache(g: &mut Builder, l: usize, k: &str, v: &str) -> (String, String) {
+    let mut cat = |which: &str, new: &str| {
+        g.op(
+            "Concat",
+            &[&format!("cache_{which}_{l}"), new],
+            vec![attr_i("axis", 2)],
+            None,
+        )
+    };
+    let kc = cat("k", k);
+    (kc, cat("v", v))
+}
+
 /// Pre-LN blocks `{pre}{l}` over `x: [1, 1, d]` with cached keys/values
 /// (`cache_k_{l}` `[1, H, C, dh]`) and the `bias` input; names the new
 /// keys/values `k_{l}`, `v_{l}`. The global step's form: it runs once or
 /// twice a frame, so its operation count matters less than the local
 /// step's (once a slot, [`row_blocks`]), and `fit-heads` edits its head
 /// nodes as written here.
-fn cached_blocks(
-    g: &mut Builder,
-    x: &str,
-    pre: &str,
-    layers: usize,
-    d: usize,
-    heads: usize,
-    eps: f32,
-) -> String {
-    let (d, h, dh) = (d as i64, heads as i64, (d / heads) as i64);
+fn cached_blocks(g: &mut Builder, x: &str, b: &Blocks) -> String {
+    let (pre, layers, eps) = (b.pre, b.layers, b.eps);
+    let (d, h, dh) = (b.d as i64, b.heads as i64, (b.d / b.heads) as i64);
     let mut x = x.to_string();
     for l in 0..layers {
         let n = |s: &str| format!("{pre}{l}.{s}");
         let (q, k, v) = g.qkv(&x, &n, eps, h, dh);
         let kn = g.op("Identity", &[&k], vec![], Some(&format!("k_{l}")));
         let vn = g.op("Identity", &[&v], vec![], Some(&format!("v_{l}")));
-        let kc = g.op(
-            "Concat",
-            &[&format!("cache_k_{l}"), &kn],
-            vec![attr_i("axis", 2)],
-            None,
-        );
-        let vc = g.op(
-            "Concat",
-            &[&format!("cache_v_{l}"), &vn],
-            vec![attr_i("axis", 2)],
-            None,
-        );
+        let (kc, vc) = with_cache(g, l, &kn, &vn);
         let att = g.attend(&q, &kc, &vc, Some("bias"), d, dh);
         let o = g.lin(&att, &n("o"));
         x = g.op("Add", &[&x, &o], vec![], None);
@@ -136,16 +142,9 @@ pub fn graph_weights(
 /// node): each linear layer is one `Gemm` over the rows, the query, key
 /// and value one product (weights fused by [`fuse_qkv`]) cut into heads by
 /// a reshape and a split.
-fn row_blocks(
-    g: &mut Builder,
-    x: &str,
-    pre: &str,
-    layers: usize,
-    d: usize,
-    heads: usize,
-    eps: f32,
-) -> String {
-    let (d, h, dh) = (d as i64, heads as i64, (d / heads) as i64);
+fn row_blocks(g: &mut Builder, x: &str, b: &Blocks) -> String {
+    let (pre, layers, eps) = (b.pre, b.layers, b.eps);
+    let (d, h, dh) = (b.d as i64, b.heads as i64, (b.d / b.heads) as i64);
     let qkv_shape = g.i64("shape_qkv", &[0, 3 * h, 1, dh]);
     let split = g.i64("split_qkv", &[h, h, h]);
     let row = g.i64("shape_row", &[0, d]);
@@ -163,18 +162,7 @@ fn row_blocks(
             vec![attr_i("axis", 1)],
             &[&q, &k, &v],
         );
-        let kc = g.op(
-            "Concat",
-            &[&format!("cache_k_{l}"), &k],
-            vec![attr_i("axis", 2)],
-            None,
-        );
-        let vc = g.op(
-            "Concat",
-            &[&format!("cache_v_{l}"), &v],
-            vec![attr_i("axis", 2)],
-            None,
-        );
+        let (kc, vc) = with_cache(g, l, &k, &v);
         let kt = g.op(
             "Transpose",
             &[&kc],
@@ -260,11 +248,13 @@ pub fn global_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
     let x = cached_blocks(
         &mut g,
         &x,
-        "g",
-        c.global_layers,
-        c.d_global,
-        c.global_heads,
-        eps,
+        &Blocks {
+            pre: "g",
+            layers: c.global_layers,
+            d: c.d_global,
+            heads: c.global_heads,
+            eps,
+        },
     );
     let h = g.ln(&x, "g_ln", eps);
     g.op("Identity", &[&h], vec![], Some("h"));
@@ -342,11 +332,13 @@ pub fn local_model(net: &FrameNet) -> anyhow::Result<ModelProto> {
     let x = row_blocks(
         &mut g,
         &x,
-        "l",
-        c.local_layers,
-        c.d_local,
-        c.local_heads,
-        eps,
+        &Blocks {
+            pre: "l",
+            layers: c.local_layers,
+            d: c.d_local,
+            heads: c.local_heads,
+            eps,
+        },
     );
     let x = g.ln(&x, "l_ln", eps);
     let one_row = g.i64("shape_out", &[0, 1, -1]);
