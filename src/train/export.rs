@@ -121,18 +121,10 @@ impl Builder {
         attrs: Vec<AttributeProto>,
         out: Option<&str>,
     ) -> String {
-        self.count += 1;
         let o = out
             .map(str::to_string)
-            .unwrap_or_else(|| format!("{}_{}", op.to_lowercase(), self.count));
-        self.nodes.push(NodeProto {
-            input: inputs.iter().map(|s| s.to_string()).collect(),
-            output: vec![o.clone()],
-            name: format!("n{}_{op}", self.count),
-            op_type: op.into(),
-            attribute: attrs,
-            ..Default::default()
-        });
+            .unwrap_or_else(|| format!("{}_{}", op.to_lowercase(), self.count + 1));
+        self.ops(op, inputs, attrs, &[&o]);
         o
     }
     /// Adds a node with several outputs, named `outs`.
