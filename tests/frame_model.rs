@@ -271,6 +271,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         jerk: 0.0,
         ease: 0.0,
         matching: 0.0,
+        travel: 1.0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;
@@ -694,6 +695,23 @@ fn posture_pulls_the_joints_toward_the_labels_posture() {
     };
     let matched = go_on(moving, &matching_s);
     assert_eq!(matched, go_on(moving, &matching_s), "one seed, one clip");
+    // sampling.travel past 10: refused, naming it.
+    let e = model
+        .generator(
+            &labels,
+            moving,
+            Sampling {
+                travel: 11.0,
+                ..matching_s.clone()
+            },
+        )
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("sampling.travel") && e.contains("0 to 10"),
+        "{e}"
+    );
     // Its frames lie nearer the library's real frames (joint angles and
     // the root's height) than the pulled clip's do.
     let library: Vec<Vec<u32>> = ex

@@ -657,6 +657,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             jerk: 0.0,
             ease: 0.0,
             matching: 0.0,
+            travel: 0.0,
         }),
         exemplar: String::new(),
         candidates: 0,
@@ -1037,6 +1038,26 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         )
         .await;
     }
+    // travel (the root's travel left to the model while the joints
+    // follow the takes; here the prompt forces the pelvis's path): the same
+    // frames over both transports (gRPC spells none negative), the answer
+    // says it; past 10 a 400 naming it.
+    let mut g = greq.clone();
+    let gs = g.sampling.as_mut().unwrap();
+    (gs.matching, gs.travel) = (1.0, -1.0);
+    let g = client.generate(g).await.unwrap().into_inner();
+    assert_eq!(g.sampling.as_ref().unwrap().travel, -1.0);
+    let sampling = json!({"temperature": 0.9, "top_k": 40, "top_p": 0.95, "seed": 7,
+        "matching": 1.0, "travel": 0.0});
+    let free = g.output.unwrap().rotations;
+    let r = prompted_rest_matches(h, &b64, sampling, &free, "travel").await;
+    assert_eq!(r["sampling"]["travel"], json!(0.0), "{}", r["sampling"]);
+    generate_refused(
+        h,
+        json!({"frames": 4, "sampling": {"travel": 11.0}}),
+        "sampling.travel",
+    )
+    .await;
 
     // A request naming no max_jump, top_p or posture gets the model's
     // default for its labels' kinds (the bundled manifest: posture 1.5 and

@@ -99,6 +99,11 @@ impl Choreo for ChoreoGrpc {
                 } else {
                     r.sampling.matching
                 },
+                travel: if r.sampling.travel == 0.0 {
+                    -1.0
+                } else {
+                    r.sampling.travel
+                },
             }),
         }))
     }

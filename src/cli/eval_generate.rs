@@ -7,24 +7,23 @@ use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use std::path::{Path, PathBuf};
 
-/// `T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M]]]]]]]]]]` (temperature, top-k,
-/// top-p, guidance, keep_near, max_jump, posture, context, draws, pace,
-/// jerk, ease, matching),
-/// or `greedy`.
+/// `T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M[:V]]]]]]]]]]]` (temperature,
+/// top-k, top-p, guidance, keep_near, max_jump, posture, context, draws,
+/// pace, jerk, ease, matching, travel), or `greedy`.
 pub fn parse_sampling(s: &str) -> Result<Sampling> {
     if s == "greedy" {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    if !(3..=13).contains(&parts.len()) {
+    if !(3..=14).contains(&parts.len()) {
         bail!(
-            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M]]]]]]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context[:draws[:pace[:jerk[:ease[:matching]]]]]]]]]]) or greedy"
+            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M[:V]]]]]]]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context[:draws[:pace[:jerk[:ease[:matching[:travel]]]]]]]]]]]) or greedy"
         );
     }
     // The optional fields, each its "off" value when left out.
     let field = |i: usize, off: &'static str| parts.get(i).copied().unwrap_or(off);
     let (t, k, p) = (parts[0], parts[1], parts[2]);
-    let (e, m) = (field(11, "0"), field(12, "0"));
+    let (e, m, v) = (field(11, "0"), field(12, "0"), field(13, "1"));
     let (g, n, j, w, c, d, a, r) = (
         field(3, "1"),
         field(4, "0"),
@@ -76,6 +75,9 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         matching: m
             .parse()
             .with_context(|| format!("--sampling: matching '{m}'"))?,
+        travel: v
+            .parse()
+            .with_context(|| format!("--sampling: travel '{v}'"))?,
     };
     sm.validate()
         .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;

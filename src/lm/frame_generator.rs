@@ -148,7 +148,7 @@ impl FrameGenerator {
             None
         };
         let library = if sampling.matching > 0.0 {
-            Some(Arc::new(library_for(&session, labels)?))
+            Some(Arc::new(library_for(&session, labels, sampling.travel)?))
         } else {
             None
         };
@@ -558,11 +558,14 @@ fn slot_token(
 type Follow<'a> = Option<&'a [Option<Vec<f32>>]>;
 
 /// The real frames `sampling.matching` follows for `labels`: the session's
-/// exemplar spans carrying every one of them; a 400 naming the field
-/// without labels, without exemplars or without such a span.
+/// exemplar spans carrying every one of them, the root's travel followed
+/// with weight `travel` (`sampling.travel`; 0 = not followed); a 400
+/// naming the field without labels, without exemplars or without such a
+/// span.
 fn library_for(
     session: &FrameSession,
     labels: &Labels,
+    travel: f64,
 ) -> Result<super::matching::Library, LmError> {
     let bad = |why: &str| LmError::invalid("request", "sampling.matching", why);
     if labels.is_empty() {
@@ -577,8 +580,12 @@ fn library_for(
     super::matching::Library::for_labels(ex, labels, c.slots, c.bins)
         .map(|l| {
             let v = &session.manifest.vocabulary;
-            if v.frame_len() == c.slots + 1 {
-                l.travelling(v.velocity_bins(), v.root_velocity == RootVelocity::Heading)
+            if v.frame_len() == c.slots + 1 && travel > 0.0 {
+                l.travelling(
+                    v.velocity_bins(),
+                    v.root_velocity == RootVelocity::Heading,
+                    travel,
+                )
             } else {
                 l
             }

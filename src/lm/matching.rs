@@ -78,13 +78,14 @@ struct Travel {
     /// Whether the slots already hold the velocity in the heading
     /// (`root_velocity: heading`); else in the scene's axes.
     heading_slots: bool,
+    /// The pull's weight as a share of the joints' (`sampling.travel`).
+    weight: f64,
     /// Per span, per frame: (heading, velocity in the heading).
     local: Vec<Vec<(f64, (f64, f64))>>,
 }
 
-/// The root's travel pull: its weight as a share of the joints' and its
-/// spread (velocity bins; 0.18 m/s in the bundled vocabulary's).
-const TRAVEL_WEIGHT: f64 = 1.0;
+/// The root's travel pull's spread (velocity bins; 0.18 m/s in the
+/// bundled vocabulary's); its weight is `sampling.travel`.
 const TRAVEL_SPREAD: f64 = 8.0;
 
 /// Whether exemplar `it` carries every one of `labels`.
@@ -170,11 +171,12 @@ impl Library {
         (!lib.spans.is_empty()).then_some(lib)
     }
 
-    /// The library with the root's ground velocity followed too:
-    /// `bins`, the velocity slots' bins, and whether they hold it in the
-    /// pelvis's heading (else in the scene's axes). The velocity slots are
-    /// the two before the height.
-    pub fn travelling(mut self, bins: UniformBins, heading_slots: bool) -> Library {
+    /// The library with the root's ground velocity followed too, pulled
+    /// with `weight` as a share of the joints' pull: `bins`, the velocity
+    /// slots' bins, and whether they hold it in the pelvis's heading (else
+    /// in the scene's axes). The velocity slots are the two before the
+    /// height.
+    pub fn travelling(mut self, bins: UniformBins, heading_slots: bool, weight: f64) -> Library {
         let local = self
             .spans
             .iter()
@@ -187,6 +189,7 @@ impl Library {
         self.travel = Some(Travel {
             bins,
             heading_slots,
+            weight,
             local,
         });
         self
@@ -335,8 +338,12 @@ impl Library {
     /// Slot `s`'s logit offsets toward `target` times `weight` (None for a
     /// slot not followed).
     pub fn offsets(&self, target: &[u32], s: usize, weight: f64) -> Option<Vec<f32>> {
-        if self.travel.is_some() && (s + 3 == self.slots || s + 2 == self.slots) {
-            let k = weight * TRAVEL_WEIGHT / (2.0 * TRAVEL_SPREAD * TRAVEL_SPREAD);
+        if let Some(tr) = self
+            .travel
+            .as_ref()
+            .filter(|_| s + 3 == self.slots || s + 2 == self.slots)
+        {
+            let k = weight * tr.weight / (2.0 * TRAVEL_SPREAD * TRAVEL_SPREAD);
             return Some(
                 (0..self.bins)
                     .map(|b| {
@@ -481,7 +488,7 @@ mod tests {
         let plain = Library::new(vec![take.clone()], 9, 360).unwrap();
         let lib = Library::new(vec![take], 9, 360)
             .unwrap()
-            .travelling(vb.clone(), false);
+            .travelling(vb.clone(), false, 1.0);
         let quarter = UniformBins::angles(360).encode(std::f64::consts::FRAC_PI_2);
         let p = walk([180, quarter, 180], (1.0, 0.0));
         // Without travel the velocity slots are not followed.
@@ -493,6 +500,15 @@ mod tests {
         let off = lib.offsets(&t, 7, 1.0).unwrap();
         let best = (0..360).max_by(|&a, &b| off[a].total_cmp(&off[b])).unwrap();
         assert_eq!(best as u32, t[7]);
+        // `sampling.travel` scales the velocity slots' pull, and only theirs.
+        let half = Library::new(vec![vec![walk([180, 180, 180], (0.0, 1.0)); 4]], 9, 360)
+            .unwrap()
+            .travelling(vb.clone(), false, 0.5);
+        let off_half = half.offsets(&t, 7, 1.0).unwrap();
+        for (h, w) in off_half.iter().zip(&off) {
+            assert!((h - 0.5 * w).abs() <= 1e-4 * w.abs().max(1.0), "{h} vs {w}");
+        }
+        assert_eq!(half.offsets(&t, 3, 1.0), lib.offsets(&t, 3, 1.0));
         // ... and a standing clip is led half-way to the take's pace.
         let still = walk([180, quarter, 180], (0.0, 0.0));
         let t = lib.target(&still, Some(&still));
@@ -501,7 +517,7 @@ mod tests {
         // the take's forward pace, as is.
         let lib = Library::new(vec![vec![walk([180, 180, 180], (0.0, 1.0)); 4]], 9, 360)
             .unwrap()
-            .travelling(vb.clone(), true);
+            .travelling(vb.clone(), true, 1.0);
         let p = walk([180, quarter, 180], (0.0, 1.0));
         let t = lib.target(&p, Some(&p));
         assert!(t[7].abs_diff(vb.encode(1.0)) <= 1 && t[6].abs_diff(vb.encode(0.0)) <= 1);

@@ -88,6 +88,15 @@ pub struct Sampling {
     /// the body's tilt. 0 = off; needs labels and the folder's
     /// exemplars.json (docs/RESULTS.md, "Session 43").
     pub matching: f64,
+    /// Frame model only, with `matching`: how strongly the root's ground
+    /// velocity follows the matched take's travel (in the body's own
+    /// heading), as a share of the joints' pull: 1 = as strongly as the
+    /// joints (the default), 0 = the root's travel left to the model
+    /// while the joints still follow the takes. Tied to the takes, the
+    /// feet slide less; left to the model, a model whose legs move less
+    /// than real keeps the activity its root's drift gives the clip
+    /// (docs/RESULTS.md, "Session 48").
+    pub travel: f64,
 }
 
 impl Default for Sampling {
@@ -107,6 +116,7 @@ impl Default for Sampling {
             jerk: 0.0,
             ease: 0.0,
             matching: 0.0,
+            travel: 1.0,
         }
     }
 }
@@ -139,6 +149,7 @@ pub const RECOMMENDED: Sampling = Sampling {
     jerk: 0.0,
     ease: 0.0,
     matching: 0.0,
+    travel: 1.0,
 };
 
 /// The most candidate frames `sampling.draws` may ask for.
@@ -238,6 +249,16 @@ impl Sampling {
                 "request",
                 "sampling.matching",
                 format!("{} (want 0 to 10; 0 = off)", self.matching),
+            ));
+        }
+        if !(self.travel.is_finite() && (0.0..=10.0).contains(&self.travel)) {
+            return Err(LmError::invalid(
+                "request",
+                "sampling.travel",
+                format!(
+                    "{} (want 0 to 10; 1 = as strongly as the joints, 0 = left to the model)",
+                    self.travel
+                ),
             ));
         }
         if self.max_jump > 180 {

@@ -152,6 +152,12 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.matching.max(0.0)
     };
+    // proto3 again: 0 = as strongly as the joints, negative = none.
+    let travel = if s.travel == 0.0 {
+        r.travel
+    } else {
+        s.travel.max(0.0)
+    };
     if !explicit(&s) {
         return crate::lm::Sampling {
             guidance,
@@ -163,6 +169,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
             jerk,
             ease,
             matching,
+            travel,
             ..r
         };
     }
@@ -181,6 +188,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         jerk,
         ease,
         matching,
+        travel,
     }
 }
 

@@ -227,6 +227,11 @@ pub struct SamplingJson {
     /// for a style or a content) where the model
     /// has real takes of every asked-for label, else off.
     pub matching: Option<f64>,
+    /// With `matching`: how strongly the root's ground velocity follows
+    /// the matched take's travel, as a share of the joints' pull (1 = as
+    /// strongly, the default; 0 = the root's travel left to the model
+    /// while the joints still follow the takes).
+    pub travel: Option<f64>,
 }
 
 impl SamplingJson {
@@ -265,6 +270,7 @@ impl SamplingJson {
                 jerk: self.jerk.unwrap_or(r.jerk),
                 ease: self.ease.unwrap_or(r.ease),
                 matching: self.matching.unwrap_or(r.matching),
+                travel: self.travel.unwrap_or(r.travel),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -282,6 +288,7 @@ impl SamplingJson {
                 jerk: self.jerk.unwrap_or(r.jerk),
                 ease: self.ease.unwrap_or(r.ease),
                 matching: self.matching.unwrap_or(r.matching),
+                travel: self.travel.unwrap_or(r.travel),
             },
         }
     }
