@@ -355,11 +355,12 @@ impl Engine {
                     .map_err(|e| bad(e.to_string()))?;
                 check_names(&model, spec).map_err(|e| bad(e.to_string()))?;
                 let model = pin_shapes(model, spec.f32_shapes).map_err(|e| bad(e.to_string()))?;
+                let typed = model
+                    .into_typed()
+                    .and_then(|m| m.into_decluttered())
+                    .and_then(softmax::rows_by_plain_code)
+                    .map_err(|e| bad(e.to_string()))?;
                 if let Some(sym) = batch {
-                    let typed = model
-                        .into_typed()
-                        .and_then(|m| m.into_decluttered())
-                        .map_err(|e| bad(e.to_string()))?;
                     let sym = typed.sym(sym);
                     let g = TractBatched {
                         typed,
@@ -369,7 +370,7 @@ impl Engine {
                     g.plan(1).map_err(|e| bad(e.to_string()))?;
                     return Ok(Arc::new(g));
                 }
-                let plan = model
+                let plan = typed
                     .into_optimized()
                     .and_then(|m| m.into_runnable())
                     .map_err(|e| bad(e.to_string()))?;
@@ -572,3 +573,4 @@ impl GraphState for TractState {
 
 #[cfg(feature = "onnxruntime")]
 mod ort_rt;
+mod softmax;
