@@ -10,7 +10,6 @@ use super::frame_runtime::{FrameSession, Step};
 use super::sampling::Sampling;
 use super::LmError;
 use crate::motion::Labels;
-use crate::tokenize::vocab::RootVelocity;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use std::sync::Arc;
@@ -148,7 +147,11 @@ impl FrameGenerator {
             None
         };
         let library = if sampling.matching > 0.0 {
-            Some(Arc::new(library_for(&session, labels, sampling.travel)?))
+            Some(Arc::new(super::matching::Library::for_session(
+                &session,
+                labels,
+                sampling.travel,
+            )?))
         } else {
             None
         };
@@ -556,44 +559,6 @@ fn slot_token(
 /// Motion matching for one frame: per slot, the logit offsets toward the
 /// frame's target (None for a slot not followed).
 type Follow<'a> = Option<&'a [Option<Vec<f32>>]>;
-
-/// The real frames `sampling.matching` follows for `labels`: the session's
-/// exemplar spans carrying every one of them, the root's travel followed
-/// with weight `travel` (`sampling.travel`; 0 = not followed); a 400
-/// naming the field without labels, without exemplars or without such a
-/// span.
-fn library_for(
-    session: &FrameSession,
-    labels: &Labels,
-    travel: f64,
-) -> Result<super::matching::Library, LmError> {
-    let bad = |why: &str| LmError::invalid("request", "sampling.matching", why);
-    if labels.is_empty() {
-        return Err(bad(
-            "follows the real takes of the asked-for labels, and the request asks for none",
-        ));
-    }
-    let ex = session.exemplars.as_ref().ok_or_else(|| {
-        bad("this model has no exemplars.json to follow (choreo exemplars writes one)")
-    })?;
-    let c = session.config();
-    super::matching::Library::for_labels(ex, labels, c.slots, c.bins)
-        .map(|l| {
-            let v = &session.manifest.vocabulary;
-            if v.frame_len() == c.slots + 1 && travel > 0.0 {
-                l.travelling(
-                    v.velocity_bins(),
-                    v.root_velocity == RootVelocity::Heading,
-                    travel,
-                )
-            } else {
-                l
-            }
-        })
-        .ok_or_else(|| {
-            bad("no exemplar span of this model carries every asked-for label (choreo exemplars writes them)")
-        })
-}
 
 /// The frames the global window holds: `sampling.context` (never more
 /// than the model's window: [`FrameGenerator::new`] refuses that), or the

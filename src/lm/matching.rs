@@ -136,6 +136,41 @@ impl Library {
         Library::new(spans, slots, bins).filter(|_| !labels.is_empty())
     }
 
+    /// What `sampling.matching` follows in a request for `labels` on
+    /// `session`: its exemplar spans carrying every one of them, the root's
+    /// travel followed with weight `travel` (`sampling.travel`; 0 = not
+    /// followed) where the vocabulary has velocity slots; a 400 naming the
+    /// field without labels, without exemplars or without such a span.
+    pub fn for_session(
+        session: &super::frame_runtime::FrameSession,
+        labels: &Labels,
+        travel: f64,
+    ) -> Result<Library, super::LmError> {
+        let bad = |why: &str| super::LmError::invalid("request", "sampling.matching", why);
+        if labels.is_empty() {
+            return Err(bad(
+                "follows the real takes of the asked-for labels, and the request asks for none",
+            ));
+        }
+        let ex = session.exemplars.as_ref().ok_or_else(|| {
+            bad("this model has no exemplars.json to follow (choreo exemplars writes one)")
+        })?;
+        let c = session.config();
+        let v = &session.manifest.vocabulary;
+        let lib = Library::for_labels(ex, labels, c.slots, c.bins).ok_or_else(|| {
+            bad("no exemplar span of this model carries every asked-for label (choreo exemplars writes them)")
+        })?;
+        Ok(if v.frame_len() == c.slots + 1 && travel > 0.0 {
+            lib.travelling(
+                v.velocity_bins(),
+                v.root_velocity == crate::tokenize::vocab::RootVelocity::Heading,
+                travel,
+            )
+        } else {
+            lib
+        })
+    }
+
     /// Whether [`Self::for_labels`] finds a span (without building the
     /// library).
     pub fn available(ex: &Exemplars, labels: &Labels, slots: usize) -> bool {

@@ -111,4 +111,57 @@ mod tests {
         assert_eq!(d[3], 0.0);
         assert!(d[4..].iter().all(|&x| (x - 0.25).abs() < 1e-7));
     }
+
+    #[test]
+    fn a_last_axis_softmax_is_replaced_and_answers_as_tracts() -> TractResult<()> {
+        // Two softmaxes of one input: over the last axis (replaced) and
+        // over the middle one (left to tract).
+        let mut m = TypedModel::default();
+        let x = m.add_source("x", f32::fact([2, 3, 43]))?;
+        let last = Softmax::new(tvec![2], None, SoftmaxKind::Softmax);
+        let mid = Softmax::new(tvec![1], None, SoftmaxKind::Softmax);
+        let a = m.wire_node("last", last, &[x])?[0];
+        let b = m.wire_node("mid", mid, &[x])?[0];
+        m.select_output_outlets(&[a, b])?;
+        let patched = rows_by_plain_code(m.clone())?;
+        let names: Vec<String> = patched
+            .nodes()
+            .iter()
+            .map(|n| n.op().name().to_string())
+            .collect();
+        assert_eq!(
+            names.iter().filter(|n| *n == "RowSoftmax").count(),
+            1,
+            "{names:?}"
+        );
+        assert_eq!(
+            names.iter().filter(|n| *n == "Softmax").count(),
+            1,
+            "{names:?}"
+        );
+        let input: Vec<f32> = (0..2 * 3 * 43)
+            .map(|i| {
+                if i % 7 == 3 {
+                    -1e9
+                } else {
+                    ((i * 37) % 23) as f32 * 0.4 - 4.0
+                }
+            })
+            .collect();
+        let run = |m: TypedModel| -> TractResult<TVec<TValue>> {
+            let t = Tensor::from_shape(&[2, 3, 43], &input)?;
+            m.into_optimized()?
+                .into_runnable()?
+                .run(tvec![t.into_tvalue()])
+        };
+        let (want, got) = (run(m)?, run(patched)?);
+        for (w, g) in want.iter().zip(&got) {
+            let (w, g) = (w.try_as_plain_ram()?, g.try_as_plain_ram()?);
+            let (w, g) = (w.as_slice::<f32>()?, g.as_slice::<f32>()?);
+            for (a, b) in w.iter().zip(g) {
+                assert!((a - b).abs() < 1e-6, "{a} vs {b}");
+            }
+        }
+        Ok(())
+    }
 }
