@@ -2,16 +2,20 @@
 # The flat GPT (the thesis's, 43 tokens a frame) against the frame model
 # (one global step a frame), trained on the same data with the same CPU
 # time, then measured the same way (docs/RESULTS.md, "Flat against frame, same CPU
-# time"). Both train at once, one thread each, under one time limit, so
-# each gets the same CPU seconds; the step counts size each cosine schedule
-# to end near that limit (measured here: ~3.0 s a flat step of 16 × 8
-# frames, ~6.9 s a frame-model step of 6 × 200 frames, one thread each).
+# time"). Both train at once, one thread each, under one time limit; the
+# step counts size each cosine schedule so both use about the same CPU
+# seconds (measured in session 48: ~1.97 s a flat step of 16 × 8 frames,
+# ~2.47 s a frame-model step of 6 × 200 frames, one thread each; 950 flat
+# steps and 760 frame steps are ~1,870 s each). Each run's CPU seconds
+# (user + system, what a busy machine does not inflate) go to
+# RUN_DIR/{flat,frame}.cpu. Generation is measured with the seeds in
+# SEEDS (default "0 100").
 #   scripts/compare_models.sh RUN_DIR [SECONDS] [FLAT_STEPS] [FRAME_STEPS]
 set -euo pipefail
 run=${1:?run folder}
 secs=${2:-2700}
 flat_steps=${3:-950}
-frame_steps=${4:-410}
+frame_steps=${4:-760}
 data=${CHOREO_DATA:-../shared/data}
 cargo build --release --all-features --bins
 mkdir -p "$run/bin"
@@ -20,9 +24,11 @@ cp target/release/choreo target/release/choreo-train "$run/bin/"
 T=$run/bin/choreo-train
 C=$run/bin/choreo
 # 1. Training: the same corpora (every one under --data), split and mirrors.
-RAYON_NUM_THREADS=1 $T train --out "$run/flat" --d-model 128 --layers 3 --heads 4 --frames 8 \
+RAYON_NUM_THREADS=1 /usr/bin/time -o "$run/flat.cpu" -f "user %U system %S wall %e" \
+    $T train --out "$run/flat" --d-model 128 --layers 3 --heads 4 --frames 8 \
     --steps "$flat_steps" --eval-every 100 --max-seconds "$secs" --export > "$run/flat.log" 2>&1 &
-RAYON_NUM_THREADS=1 $T frame --out "$run/frame" --frames 200 --batch 6 \
+RAYON_NUM_THREADS=1 /usr/bin/time -o "$run/frame.cpu" -f "user %U system %S wall %e" \
+    $T frame --out "$run/frame" --frames 200 --batch 6 \
     --steps "$frame_steps" --eval-every 100 --max-seconds "$secs" > "$run/frame.table.json" 2> "$run/frame.log" &
 wait
 # 2. Held-out bits/frame on the trainer's split, per corpus, beside the
@@ -48,23 +54,25 @@ $C postures --model "$run/frame/export" "${ex_data[@]}" --clusters style=8 --clu
 $C bench model --model "$run/frame/export" --frames 600 > "$run/frame.bench.json"
 $C bench model --model "$run/flat/export" --frames 200 > "$run/flat.bench.json"
 # 5. Generation, both models side by side (single-threaded each, so two at
-#    once): the flat GPT at t 1, top-p 0.95 with and without its exemplar
-#    (its sampler has no keep_near, max_jump or posture); the frame model
-#    with exemplars at the bundled model's per-kind defaults (Bandai
-#    style: top-p 1, max_jump 12, clustered posture 1.5, 4 candidates, jerk
-#    price 1, the pull eased in a slowing clip (ease 1); AIST++ genre:
-#    top-p 1, max_jump 48, posture 2, 4 candidates, jerk price 1). Every
-#    row of both models is also measured with the root from the feet
-#    (Bandai; the AIST++ root stays in place) and the feet pinned.
+#    once), each seed of SEEDS: the flat GPT at t 1, top-p 0.95 with and
+#    without its exemplar (its sampler has no keep_near, max_jump, posture
+#    or matching); the frame model with exemplars at the bundled model's
+#    per-kind defaults (Bandai style: top-p 1, max_jump 12, clustered
+#    posture 1.5, 4 candidates, jerk price 1, ease 1, matching 6; AIST++
+#    genre: top-p 1, max_jump 48, posture 2, 4 candidates, jerk price 1,
+#    ease 1). Every row of both models is also measured with the root from
+#    the feet (Bandai; the AIST++ root stays in place) and the feet pinned.
 per=${GEN_PER_LABEL:-6}
-$C eval generate --model "$run/flat/export" --data "$data/bandai" --labels style --per-label "$per" \
-    --sampling 1:0:0.95 --exemplar both --root both --feet both --json > "$run/flat.gen.bandai.json" &
-$C eval generate --model "$run/flat/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" \
-    --sampling 1:0:0.95 --exemplar both --feet both --json > "$run/flat.gen.vrm.json" &
-wait
-$C eval generate --model "$run/frame/export" --data "$data/bandai" --labels style --per-label "$per" \
-    --sampling 1:0:1:1:2:12:1.5:0:4:0:1:1 --exemplar auto --root both --feet both --json > "$run/frame.gen.bandai.json" &
-$C eval generate --model "$run/frame/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" \
-    --sampling 1:0:1:1:2:48:2:0:4:0:1 --exemplar auto --feet both --json > "$run/frame.gen.vrm.json" &
-wait
+for seed in ${SEEDS:-0 100}; do
+    $C eval generate --model "$run/flat/export" --data "$data/bandai" --labels style --per-label "$per" --seed "$seed" \
+        --sampling 1:0:0.95 --exemplar both --root both --feet both --json > "$run/flat.gen.bandai.s$seed.json" &
+    $C eval generate --model "$run/flat/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" --seed "$seed" \
+        --sampling 1:0:0.95 --exemplar both --feet both --json > "$run/flat.gen.vrm.s$seed.json" &
+    wait
+    $C eval generate --model "$run/frame/export" --data "$data/bandai" --labels style --per-label "$per" --seed "$seed" \
+        --sampling 1:0:1:1:2:12:1.5:0:4:0:1:1:6 --exemplar auto --root both --feet both --json > "$run/frame.gen.bandai.s$seed.json" &
+    $C eval generate --model "$run/frame/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" --seed "$seed" \
+        --sampling 1:0:1:1:2:48:2:0:4:0:1:1 --exemplar auto --feet both --json > "$run/frame.gen.vrm.s$seed.json" &
+    wait
+done
 echo "tables in $run"
