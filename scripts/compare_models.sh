@@ -45,6 +45,13 @@ $T eval --checkpoint "$run/flat" > "$run/flat.bits.all.json"
 ex_data=(--data "$data/bandai" --data "$data/aistpp-vrm" --data "$data/aistpp" --data "$data/cmu")
 $C exemplars --model "$run/frame/export" "${ex_data[@]}"
 $C exemplars --model "$run/flat/export" --seconds 0.4 "${ex_data[@]}"
+# Style exemplars as the bundled model's are made (10 a style spread over
+# Bandai's contents, 2 s; 0.4 s for the flat GPT): the default recipe's
+# (each style's 3 likeliest 5 s spans) are calm, and motion matching
+# follows the spans, so with them any model's style clips move about a
+# sixth as much across clips as real takes (docs/RESULTS.md, "Session 49").
+$C exemplars --model "$run/frame/export" --data "$data/bandai" --kind style --cover content --per-label 10 --seconds 2
+$C exemplars --model "$run/flat/export" --data "$data/bandai" --kind style --cover content --per-label 10 --seconds 0.4
 # Label postures for the frame model's posture pull (sampling.posture),
 # from the same training sequences, with pose clusters for Bandai's style
 # and content as the bundled model has them (seconds; the flat GPT has no
