@@ -1913,3 +1913,53 @@ fn the_bundled_local_graph_is_as_the_exporter_writes_it() {
         assert!(!t.contains_key(&format!("l{l}.qkv.w")));
     }
 }
+
+/// `choreo-train train --resume --steps N`: the flat GPT's run goes on to
+/// the new total (the frame model's resume always did), and the saved
+/// schedule says so; without `--steps` a finished run stays finished.
+#[test]
+fn a_resumed_flat_run_takes_a_new_total() {
+    use choreo::lm::{Objective, PosScheme};
+    use choreo::train::flat_run::{train, FlatRun};
+    let v = vocab();
+    let dir = tempfile::tempdir().unwrap();
+    let run = |resume: bool, steps: usize, resume_steps: Option<usize>| FlatRun {
+        out: dir.path().to_path_buf(),
+        init: None,
+        resume,
+        d_model: 16,
+        layers: 1,
+        heads: 2,
+        frames: 2,
+        positions: PosScheme::FrameSlot,
+        objective: Objective::Causal,
+        joints: 24,
+        cond: vec!["style".into()],
+        classify: vec![],
+        steps,
+        resume_steps,
+        batch: 2,
+        lr: 1e-3,
+        dropout: 0.0,
+        eval_every: 2,
+        seed: 3,
+        max_seconds: 0.0,
+        export: false,
+        lr_sweep: false,
+    };
+    let engine = choreo::lm::engine::Engine::tract();
+    let go = |r: FlatRun| {
+        let v = v.clone();
+        train(&r, move |_, _| Ok((v.clone(), corpus(&v))), &engine).unwrap()
+    };
+    assert_eq!(go(run(false, 3, None))["steps"], 3);
+    // A resume naming no total: the run's own, already reached.
+    assert_eq!(go(run(true, 2000, None))["steps"], 3);
+    // A new total: three steps more, and the checkpoint keeps it.
+    assert_eq!(go(run(true, 2000, Some(6)))["steps"], 6);
+    let state: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("checkpoint.json")).unwrap())
+            .unwrap();
+    assert_eq!(state["step"], 6);
+    assert_eq!(state["settings"]["steps"], 6);
+}

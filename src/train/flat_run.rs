@@ -40,6 +40,10 @@ pub struct FlatRun {
     /// Label kinds to learn class heads for (none = no heads).
     pub classify: Vec<String>,
     pub steps: usize,
+    /// On resume: a new total step count (the cosine schedule is recomputed
+    /// over it, so a run can be extended, or shortened to anneal now); the
+    /// run's own total when `None`.
+    pub resume_steps: Option<usize>,
     pub batch: usize,
     pub lr: f64,
     pub dropout: f32,
@@ -126,7 +130,14 @@ pub fn train(
         max_seconds: a.max_seconds,
     };
     let (mut state, model, mut opt) = match (resume_state, init_state) {
-        (Some((st, m, o)), _) => (st, m, o),
+        (Some((mut st, m, o)), _) => {
+            // The saved schedule, with the new total and time limit asked for.
+            if let Some(n) = a.resume_steps {
+                st.settings.steps = n;
+            }
+            st.settings.max_seconds = a.max_seconds;
+            (st, m, o)
+        }
         (None, Some((st, mut m, _))) => {
             // Fine-tune: same architecture and vocabulary, fresh optimiser;
             // class heads may be added.

@@ -112,8 +112,10 @@ struct TrainArgs {
     /// Label kinds to learn class heads for (none = no heads).
     #[arg(long = "classify")]
     classify: Vec<String>,
-    #[arg(long, default_value_t = 2000)]
-    steps: usize,
+    /// Total steps (default 2000). With --resume: a new total, and the
+    /// cosine schedule is recomputed over it.
+    #[arg(long)]
+    steps: Option<usize>,
     #[arg(long, default_value_t = 16)]
     batch: usize,
     #[arg(long, default_value_t = 1e-3)]
