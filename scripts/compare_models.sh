@@ -4,9 +4,9 @@
 # time, then measured the same way (docs/RESULTS.md, "Flat against frame, same CPU
 # time"). Both train at once, one thread each, under one time limit; the
 # step counts size each cosine schedule so both use about the same CPU
-# seconds (measured in session 48: ~1.97 s a flat step of 16 × 8 frames,
-# ~2.47 s a frame-model step of 6 × 200 frames, one thread each; 950 flat
-# steps and 760 frame steps are ~1,870 s each). Each run's CPU seconds
+# seconds (CPU time measured in session 49: 1.40 s a flat step of 16 × 8
+# frames, 2.07–2.27 s a frame-model step of 6 × 200 frames, one thread
+# each; 950 flat steps and 620 frame steps are ~1,330 s each). Each run's CPU seconds
 # (user + system, what a busy machine does not inflate) go to
 # RUN_DIR/{flat,frame}.cpu. Generation is measured with the seeds in
 # SEEDS (default "0 100").
@@ -15,7 +15,7 @@ set -euo pipefail
 run=${1:?run folder}
 secs=${2:-2700}
 flat_steps=${3:-950}
-frame_steps=${4:-760}
+frame_steps=${4:-620}
 data=${CHOREO_DATA:-../shared/data}
 cargo build --release --all-features --bins
 mkdir -p "$run/bin"
