@@ -46,10 +46,12 @@ ex_data=(--data "$data/bandai" --data "$data/aistpp-vrm" --data "$data/aistpp" -
 $C exemplars --model "$run/frame/export" "${ex_data[@]}"
 $C exemplars --model "$run/flat/export" --seconds 0.4 "${ex_data[@]}"
 # Style exemplars as the bundled model's are made (10 a style spread over
-# Bandai's contents, 2 s; 0.4 s for the flat GPT): the default recipe's
-# (each style's 3 likeliest 5 s spans) are calm, and motion matching
-# follows the spans, so with them any model's style clips move about a
-# sixth as much across clips as real takes (docs/RESULTS.md, "Session 49").
+# Bandai's contents, 2 s; 0.4 s for the flat GPT): the defaults' (3 spans
+# of 5 s a style, the class heads' likeliest or by name hash) are few and
+# alike, and motion matching follows the spans, so with them the frame
+# model's style clips spread in activity a fifth to a seventh as much as
+# real takes. The flat GPT's exemplar rows run away with either set; its
+# plain rows are its best (docs/RESULTS.md, "Session 49").
 $C exemplars --model "$run/frame/export" --data "$data/bandai" --kind style --cover content --per-label 10 --seconds 2
 $C exemplars --model "$run/flat/export" --data "$data/bandai" --kind style --cover content --per-label 10 --seconds 0.4
 # Label postures for the frame model's posture pull (sampling.posture),
