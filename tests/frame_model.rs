@@ -1923,7 +1923,7 @@ fn a_resumed_flat_run_takes_a_new_total() {
     use choreo::train::flat_run::{train, FlatRun};
     let v = vocab();
     let dir = tempfile::tempdir().unwrap();
-    let run = |resume: bool, steps: usize, resume_steps: Option<usize>| FlatRun {
+    let run = |resume: bool, steps: Option<usize>| FlatRun {
         out: dir.path().to_path_buf(),
         init: None,
         resume,
@@ -1937,7 +1937,6 @@ fn a_resumed_flat_run_takes_a_new_total() {
         cond: vec!["style".into()],
         classify: vec![],
         steps,
-        resume_steps,
         batch: 2,
         lr: 1e-3,
         dropout: 0.0,
@@ -1952,11 +1951,11 @@ fn a_resumed_flat_run_takes_a_new_total() {
         let v = v.clone();
         train(&r, move |_, _| Ok((v.clone(), corpus(&v))), &engine).unwrap()
     };
-    assert_eq!(go(run(false, 3, None))["steps"], 3);
+    assert_eq!(go(run(false, Some(3)))["steps"], 3);
     // A resume naming no total: the run's own, already reached.
-    assert_eq!(go(run(true, 2000, None))["steps"], 3);
+    assert_eq!(go(run(true, None))["steps"], 3);
     // A new total: three steps more, and the checkpoint keeps it.
-    assert_eq!(go(run(true, 2000, Some(6)))["steps"], 6);
+    assert_eq!(go(run(true, Some(6)))["steps"], 6);
     let state: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("checkpoint.json")).unwrap())
             .unwrap();

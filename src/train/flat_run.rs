@@ -39,11 +39,10 @@ pub struct FlatRun {
     pub cond: Vec<String>,
     /// Label kinds to learn class heads for (none = no heads).
     pub classify: Vec<String>,
-    pub steps: usize,
-    /// On resume: a new total step count (the cosine schedule is recomputed
-    /// over it, so a run can be extended, or shortened to anneal now); the
-    /// run's own total when `None`.
-    pub resume_steps: Option<usize>,
+    /// Total steps: a new run's (None = 2000), or on resume a new total
+    /// (the cosine schedule is recomputed over it, so a run can be
+    /// extended, or shortened to anneal now; None = the run's own).
+    pub steps: Option<usize>,
     pub batch: usize,
     pub lr: f64,
     pub dropout: f32,
@@ -109,12 +108,13 @@ pub fn train(
         corpus.info.train_tokens,
         t0.elapsed().as_secs_f64()
     );
+    let steps = a.steps.unwrap_or(2000);
     let settings = RunSettings {
-        steps: a.steps,
+        steps,
         batch: a.batch,
         lr: a.lr,
         min_lr_ratio: 0.1,
-        warmup: (a.steps / 20).max(1),
+        warmup: (steps / 20).max(1),
         weight_decay: 0.1,
         dropout: a.dropout,
         eval_every: a.eval_every.max(1),
@@ -132,7 +132,7 @@ pub fn train(
     let (mut state, model, mut opt) = match (resume_state, init_state) {
         (Some((mut st, m, o)), _) => {
             // The saved schedule, with the new total and time limit asked for.
-            if let Some(n) = a.resume_steps {
+            if let Some(n) = a.steps {
                 st.settings.steps = n;
             }
             st.settings.max_seconds = a.max_seconds;
