@@ -64,6 +64,12 @@ pub struct ServeConfig {
     /// ORT_DYLIB_PATH).
     #[arg(long)]
     pub ort_lib: Option<PathBuf>,
+    /// What runs the frame model's local step (once a slot, 42 times a
+    /// frame): `kernel`, choreo's own (checked against the graph at load;
+    /// where it differs the runtime keeps it, and the log says why), or
+    /// `graph`, the runtime's run of the exported graph.
+    #[arg(long, env = "CHOREO_LOCAL_STEP", default_value = "kernel")]
+    pub local_step: crate::lm::engine::LocalStep,
     /// The learned in-betweener for `keyframes` with `inbetween: learned`
     /// (a folder written by `choreo-train inbetween`); missing = 503.
     #[arg(long, env = "CHOREO_INBETWEENER", default_value = "models/inbetween")]
@@ -256,7 +262,8 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     )
     .await?
     .with_channel_cache(cfg.channel_cache_mb << 20);
-    let engine = crate::lm::engine::Engine::new(cfg.runtime, cfg.ort_lib.as_deref())?;
+    let engine = crate::lm::engine::Engine::new(cfg.runtime, cfg.ort_lib.as_deref())?
+        .with_local_kernel(cfg.local_step == crate::lm::engine::LocalStep::Kernel);
     tracing::info!("model runtime: {}", engine.runtime().name());
     let model = if cfg.model.exists() {
         let t0 = std::time::Instant::now();

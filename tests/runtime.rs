@@ -131,8 +131,11 @@ fn tract_and_ort_agree_on_the_frame_model() {
     let Some(ort) = ort_engine() else { return };
     let v = common::style_vocab();
     let dir = exported(&v);
-    let t = FrameSession::load_with(dir.path(), &Engine::tract()).unwrap();
-    let o = FrameSession::load_with(dir.path(), &ort).unwrap();
+    // Both runtimes' own runs of the graphs (not choreo's local kernel,
+    // which `the_local_kernel_is_the_graph` checks).
+    let t = FrameSession::load_with(dir.path(), &Engine::tract().with_local_kernel(false)).unwrap();
+    let o = FrameSession::load_with(dir.path(), &ort.clone().with_local_kernel(false)).unwrap();
+    assert_eq!((t.local_step_on(), o.local_step_on()), ("tract", "ort"));
     let mut labels = Labels::new();
     labels.insert("style".into(), "sad".into());
     let cond = t.cond(&labels).unwrap();
@@ -176,6 +179,149 @@ fn tract_and_ort_agree_on_the_frame_model() {
     for (x, y) in ca.iter().flatten().zip(cb.iter().flatten()) {
         assert!((x - y).abs() < 1e-4, "{x} vs {y}");
     }
+}
+
+/// Teacher-forced logits (every slot of every frame) and candidate frames
+/// side by side: the largest difference between two sessions, and the
+/// largest logit.
+fn local_gap(a: &FrameSession, b: &FrameSession, cond: &[f32], fs: &[Vec<u32>]) -> (f32, f32) {
+    let (mut worst, mut scale) = (0f32, 0f32);
+    let ta = a.teacher_forced(cond, fs).unwrap();
+    let tb = b.teacher_forced(cond, fs).unwrap();
+    let h = a.state_after(cond, &fs[..2]).unwrap();
+    let ctx = (Some(fs[1].as_slice()), Some(fs[0].as_slice()));
+    let mut pairs: Vec<(Vec<f32>, Vec<f32>)> = ta
+        .into_iter()
+        .zip(tb)
+        .map(|((ra, aa), (rb, ab))| ([ra, aa].concat(), [rb, ab].concat()))
+        .collect();
+    for batched in [false, true] {
+        let la = a.local_logits(&h, ctx, &fs[2..6], batched).unwrap();
+        let lb = b.local_logits(&h, ctx, &fs[2..6], batched).unwrap();
+        for ((ra, aa), (rb, ab)) in la.into_iter().zip(lb) {
+            pairs.push(([ra, aa].concat(), [rb, ab].concat()));
+        }
+    }
+    for (x, y) in pairs {
+        assert_eq!(x.len(), y.len());
+        for (x, y) in x.iter().zip(&y) {
+            assert!(x.is_finite() && y.is_finite());
+            worst = worst.max((x - y).abs());
+            scale = scale.max(x.abs());
+        }
+    }
+    (worst, scale)
+}
+
+#[test]
+fn the_local_kernel_is_the_graph() {
+    // A random-weight export and the bundled model: choreo's local kernel
+    // (the default) against tract's run of the same local graph.
+    let v = common::style_vocab();
+    let dir = exported(&v);
+    let bundled = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default");
+    for (path, fs) in [
+        (dir.path().to_path_buf(), frames(&v, 12)),
+        (bundled, Vec::new()),
+    ] {
+        let k = FrameSession::load_with(&path, &Engine::tract()).unwrap();
+        let g = FrameSession::load_with(&path, &Engine::tract().with_local_kernel(false)).unwrap();
+        assert_eq!((k.local_step_on(), g.local_step_on()), ("kernel", "tract"));
+        let c = k.config();
+        // The bundled model: mid-range frames with a slow sweep, so the
+        // slots differ and the changes stay inside the window.
+        let fs = if fs.is_empty() {
+            (0..8)
+                .map(|f| {
+                    (0..c.slots)
+                        .map(|s| (c.bins / 2 + (3 * s + 2 * f) % 20) as u32)
+                        .collect()
+                })
+                .collect()
+        } else {
+            fs
+        };
+        let mut labels = Labels::new();
+        labels.insert("style".into(), "sad".into());
+        let cond = k.cond(&labels).unwrap();
+        let (worst, scale) = local_gap(&k, &g, &cond, &fs);
+        eprintln!(
+            "{}: kernel vs tract graph, local logits: max |diff| {worst:.2e} (logits up to {scale:.2})",
+            path.display()
+        );
+        assert!(scale > 0.01);
+        assert!(worst < 1e-4, "{worst}");
+    }
+}
+
+#[test]
+fn a_labelled_stream_on_the_kernel_is_the_stream_on_the_graph() {
+    // The bundled model at the style default (four candidates a frame,
+    // motion matching, posture pull): one seed, the same frames.
+    let bundled = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default");
+    let mut labels = Labels::new();
+    labels.insert("style".into(), "happy".into());
+    let run = |engine: Engine| -> Vec<u32> {
+        let model = MotionModel::load_with(&bundled, &engine).unwrap();
+        let mut s = Sampling::recommended(7);
+        model.fill_defaults(&labels, &mut s, Default::default());
+        assert_eq!(s.draws, 4);
+        let fl = model.vocabulary().frame_len();
+        let mut g = model.generator(&labels, &[], s).unwrap();
+        (0..30)
+            .flat_map(|_| g.next_frame(&vec![None; fl]).unwrap())
+            .collect()
+    };
+    let kernel = run(Engine::tract());
+    assert_eq!(kernel, run(Engine::tract().with_local_kernel(false)));
+}
+
+#[test]
+fn a_local_kernel_that_differs_from_its_graph_is_not_used() {
+    use choreo::lm::engine::{local_kernel, GraphSpec};
+    use choreo::lm::frame::{local_inputs, local_outputs, FrameManifest};
+    let v = common::style_vocab();
+    let dir = exported(&v);
+    let (m, _, bytes) = FrameManifest::load(dir.path()).unwrap();
+    let c = &m.config;
+    let graph = Engine::tract()
+        .load(
+            &bytes,
+            &GraphSpec {
+                inputs: &local_inputs(c),
+                outputs: local_outputs(c).len(),
+                file: "local.onnx",
+                f32_shapes: &[],
+                batch: Some(choreo::lm::frame::LOCAL_BATCH),
+            },
+        )
+        .unwrap();
+    let eps = c.ln_eps as f32;
+    let (_, gap) =
+        local_kernel::checked(graph.as_ref(), &bytes, (c.local_layers, c.local_heads, eps))
+            .unwrap();
+    assert!(gap < local_kernel::PROBE_TOLERANCE);
+    // A LayerNorm epsilon far off: the probe sees the outputs move and
+    // keeps the graph. The heads split otherwise: refused too (the graph
+    // itself will not take caches of that shape).
+    let why = local_kernel::checked(graph.as_ref(), &bytes, (c.local_layers, c.local_heads, 0.5))
+        .err()
+        .expect("a far-off epsilon passed the probe");
+    assert!(why.contains("from the graph's"), "{why}");
+    let heads = c.local_heads / 2;
+    assert!(
+        local_kernel::checked(graph.as_ref(), &bytes, (c.local_layers, heads, eps)).is_err(),
+        "{heads} heads passed the probe"
+    );
+    // One block fewer than the graph has: named.
+    let why = local_kernel::checked(
+        graph.as_ref(),
+        &bytes,
+        (c.local_layers - 1, c.local_heads, eps),
+    )
+    .err()
+    .unwrap();
+    assert!(why.contains("more than the manifest's"), "{why}");
 }
 
 #[test]

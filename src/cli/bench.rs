@@ -90,6 +90,10 @@ pub enum BenchCmd {
         runtime: choreo::lm::engine::Runtime,
         #[arg(long)]
         ort_lib: Option<PathBuf>,
+        /// What runs the frame model's local step: kernel (choreo's) or
+        /// graph (the runtime's run of the exported graph).
+        #[arg(long, default_value = "kernel")]
+        local_step: choreo::lm::engine::LocalStep,
         /// Also time a duet: this motion file as the performer (resampled
         /// to the model's frame rate, up to --frames frames), driving
         /// --duet-joints; the answer latency per frame.
@@ -177,12 +181,14 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             dump,
             runtime,
             ort_lib,
+            local_step,
             duet,
             duet_joints,
             label,
             json,
         } => {
-            let engine = choreo::lm::engine::Engine::new(runtime, ort_lib.as_deref())?;
+            let engine = choreo::lm::engine::Engine::new(runtime, ort_lib.as_deref())?
+                .with_local_kernel(local_step == choreo::lm::engine::LocalStep::Kernel);
             let duet = duet.as_deref().map(|f| (f, duet_joints.as_slice()));
             let mut labels = choreo::motion::Labels::new();
             for l in &label {

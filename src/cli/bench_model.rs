@@ -177,6 +177,10 @@ pub fn run(
         "model": dir.display().to_string(),
         "kind": model.kind(),
         "runtime": engine.runtime().name(),
+        "local_step": match &model {
+            MotionModel::Frame(s) => serde_json::Value::from(s.local_step_on()),
+            _ => serde_json::Value::Null,
+        },
         "context_frames": model.context_frames(),
         "load_s": load,
         "window": window,

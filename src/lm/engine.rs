@@ -57,6 +57,28 @@ impl std::str::FromStr for Runtime {
     }
 }
 
+/// What runs the frame model's local step ([`Engine::with_local_kernel`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LocalStep {
+    /// choreo's own kernel ([`local_kernel`]), where it reproduces the graph.
+    Kernel,
+    /// The runtime's run of the exported graph.
+    Graph,
+}
+
+impl std::str::FromStr for LocalStep {
+    type Err = String;
+    fn from_str(s: &str) -> Result<LocalStep, String> {
+        match s {
+            "kernel" => Ok(LocalStep::Kernel),
+            "graph" => Ok(LocalStep::Graph),
+            other => Err(format!(
+                "unknown local step {other:?}: expected kernel or graph"
+            )),
+        }
+    }
+}
+
 /// One input of a step: a shape and its row-major data.
 pub enum In<'a> {
     F32(&'a [usize], &'a [f32]),
@@ -273,6 +295,10 @@ fn has_batch(bytes: &[u8], sym: &str) -> bool {
 #[derive(Clone)]
 pub struct Engine {
     runtime: Runtime,
+    /// Whether the frame model's local step runs on choreo's own kernel
+    /// (where it reproduces the graph; [`local_kernel::checked`]) rather
+    /// than on the runtime.
+    local_kernel: bool,
     #[cfg(feature = "onnxruntime")]
     ort: Option<Arc<ort_rt::OrtEnv>>,
 }
@@ -287,6 +313,7 @@ impl Engine {
     pub fn tract() -> Engine {
         Engine {
             runtime: Runtime::Tract,
+            local_kernel: true,
             #[cfg(feature = "onnxruntime")]
             ort: None,
         }
@@ -334,12 +361,24 @@ impl Engine {
         let env = ort_rt::OrtEnv::open(&ort_library(lib)?)?;
         Ok(Engine {
             runtime: Runtime::Ort,
+            local_kernel: true,
             ort: Some(env),
         })
     }
 
     pub fn runtime(&self) -> Runtime {
         self.runtime
+    }
+
+    /// This engine with the frame model's local step on choreo's kernel
+    /// (`true`, the default) or on the runtime's own run of the graph.
+    pub fn with_local_kernel(mut self, on: bool) -> Engine {
+        self.local_kernel = on;
+        self
+    }
+
+    pub fn local_kernel(&self) -> bool {
+        self.local_kernel
     }
 
     /// Loads an ONNX graph (static shapes, as the trainer exports them),
@@ -571,6 +610,7 @@ impl GraphState for TractState {
     }
 }
 
+pub mod local_kernel;
 #[cfg(feature = "onnxruntime")]
 mod ort_rt;
 mod softmax;

@@ -25,6 +25,7 @@ pub struct FrameSession {
     pub exemplars: Option<Arc<super::exemplars::Exemplars>>,
     global: Arc<dyn Graph>,
     local: Arc<dyn Graph>,
+    local_on: &'static str,
 }
 
 /// A global or local run state with its output buffers.
@@ -65,6 +66,33 @@ impl FrameSession {
                 batch: Some(super::frame::LOCAL_BATCH),
             },
         )?;
+        // The local step on choreo's kernel where it reproduces the graph
+        // (checked on probe steps at every load), else on the runtime.
+        let (local, local_on) = if engine.local_kernel() {
+            match super::engine::local_kernel::checked(
+                local.as_ref(),
+                &l,
+                (c.local_layers, c.local_heads, c.ln_eps as f32),
+            ) {
+                Ok((k, diff)) => {
+                    tracing::debug!(
+                        "{}: local step on choreo's kernel (probe within {diff:e} of the graph)",
+                        name(&manifest.local_onnx)
+                    );
+                    (Arc::new(k) as Arc<dyn Graph>, "kernel")
+                }
+                Err(why) => {
+                    tracing::warn!(
+                        "{}: the local step stays on {}: {why}",
+                        name(&manifest.local_onnx),
+                        engine.runtime().name()
+                    );
+                    (local, engine.runtime().name())
+                }
+            }
+        } else {
+            (local, engine.runtime().name())
+        };
         let postures = super::posture::Postures::load(path, &manifest.vocabulary)?;
         let exemplars =
             super::exemplars::Exemplars::load(path, &manifest.vocabulary)?.map(Arc::new);
@@ -88,7 +116,14 @@ impl FrameSession {
             exemplars,
             global,
             local,
+            local_on,
         })
+    }
+
+    /// What runs the local step: `kernel` (choreo's), else the runtime's
+    /// name.
+    pub fn local_step_on(&self) -> &'static str {
+        self.local_on
     }
 
     pub fn config(&self) -> &FrameConfig {

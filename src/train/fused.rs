@@ -64,45 +64,7 @@ const FRAC_1_SQRT_2: f32 = std::f32::consts::FRAC_1_SQRT_2;
 /// 1/√(2π).
 const INV_SQRT_2PI: f32 = 0.398_942_3;
 
-/// Past this, erf(x) rounds to ±1 in f32 (1 − erf(3.92) = 4e-8).
-const ERF_SATURATES: f32 = 3.92;
-/// erf(x) ≈ x P(x²) / Q(x²) on |x| ≤ [`ERF_SATURATES`], clamped to ±1:
-/// within 4.4e-7 of the exact erf (scipy's float64, 2·10⁶ points on [0,
-/// 6]; libm's float64 in `train::fused::tests`, 10⁶ points on [−6, 6]),
-/// about 7 ulp of 1.0 at worst. Branch-free, so a loop over it
-/// vectorises; libm's `erff` (candle's erf) takes a branch and an `exp`
-/// per value, and GELU with it was 15 % of a training step. The
-/// coefficients were fitted here (iteratively reweighted least squares
-/// for the rational form on [0, 3.92], then rounded to f32). An exported
-/// graph keeps ONNX's `Erf`: the trainer-to-tract parity after the change
-/// read 9.5e-6 on logits up to 9.9.
-#[inline(always)]
-fn erf(x: f32) -> f32 {
-    const P: [f32; 6] = [
-        1.128_379_1,
-        0.190_650_17,
-        0.052_801_233,
-        0.003_783_061_2,
-        0.000_286_497_52,
-        2.063_373_4e-6,
-    ];
-    const Q: [f32; 6] = [
-        1.0,
-        0.502_291_44,
-        0.114_229_1,
-        0.015_001_096,
-        0.001_169_166_5,
-        3.831_572_8e-5,
-    ];
-    // Selects, not `f32::min`, so that a NaN stays NaN.
-    let a = x.abs();
-    let a = if a > ERF_SATURATES { ERF_SATURATES } else { a };
-    let u = a * a;
-    let p = P.iter().rev().fold(0.0f32, |acc, &c| acc * u + c);
-    let q = Q.iter().rev().fold(0.0f32, |acc, &c| acc * u + c);
-    let r = a * p / q;
-    (if r > 1.0 { 1.0 } else { r }).copysign(x)
-}
+use crate::lm::engine::local_kernel::erf;
 
 /// Φ(x), the standard normal's distribution function.
 fn cdf(v: f32) -> f32 {

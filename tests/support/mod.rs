@@ -34,6 +34,7 @@ pub fn serve_config(dir: &Path) -> ServeConfig {
         hnsw_ef_construction: choreo::index::hnsw::HnswParams::default().ef_construction,
         runtime: choreo::lm::engine::Runtime::Tract,
         ort_lib: None,
+        local_step: choreo::lm::engine::LocalStep::Kernel,
         tokens: None,
         public_read: true,
         rate_limit: 0.0,
