@@ -1844,7 +1844,15 @@ fn an_older_local_graph_draws_candidates_one_at_a_time_until_upgraded() {
     let new = choreo::lm::manifest::sha256_hex(&bytes);
     std::fs::write(&path, &bytes).unwrap();
     std::fs::write(&mf, text.replace(&old, &new)).unwrap();
-    assert!(!FrameSession::load(dir.path()).unwrap().batches());
+    // On the runtime's run of the graph (choreo's local kernel batches
+    // any graph it reproduces: checked on one row here).
+    let graph = choreo::lm::engine::Engine::tract().with_local_kernel(false);
+    assert!(!FrameSession::load_with(dir.path(), &graph)
+        .unwrap()
+        .batches());
+    let k = FrameSession::load(dir.path()).unwrap();
+    assert_eq!(k.local_step_on(), "kernel");
+    assert!(k.batches());
 
     // It loads and draws four candidates a frame, one after another.
     let fl = v.frame_len();
@@ -1858,7 +1866,7 @@ fn an_older_local_graph_draws_candidates_one_at_a_time_until_upgraded() {
     let mut labels = Labels::new();
     labels.insert("style".into(), "happy".into());
     let run = || -> Vec<u32> {
-        let model = MotionModel::load(dir.path()).unwrap();
+        let model = MotionModel::load_with(dir.path(), &graph).unwrap();
         let mut g = model.generator(&labels, &[], sampling.clone()).unwrap();
         (0..30)
             .flat_map(|_| g.next_frame(&vec![None; fl]).unwrap())
@@ -1873,7 +1881,9 @@ fn an_older_local_graph_draws_candidates_one_at_a_time_until_upgraded() {
     let (one, side) = frame_export::upgrade_local(dir.path()).unwrap().unwrap();
     eprintln!("upgraded: {one:.1e} one at a time, {side:.1e} batched");
     assert!(one < 1e-6 && side < 1e-4, "{one} {side}");
-    assert!(FrameSession::load(dir.path()).unwrap().batches());
+    assert!(FrameSession::load_with(dir.path(), &graph)
+        .unwrap()
+        .batches());
     assert!(frame_export::upgrade_local(dir.path()).unwrap().is_none());
     let after = run();
     assert_eq!(after.len(), 30 * fl);

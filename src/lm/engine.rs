@@ -9,6 +9,11 @@
 //! brings; on tract it keeps a plan with symbolic dimensions in
 //! `runtime.rs`).
 //!
+//! The frame model's local step, which runs 42 times a frame, has a third
+//! implementation of the same trait: choreo's own kernel
+//! ([`local_kernel`]), used on either runtime where it reproduces the
+//! graph (checked at load).
+//!
 //! Key/value caches of fixed capacity ([`Cache`]) live beside the states:
 //! a step passes them by reference (no copy in either runtime) and writes
 //! the new position's rows in place.

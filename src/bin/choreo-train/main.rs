@@ -345,7 +345,10 @@ fn main() {
 }
 
 fn run(cli: Cli) -> Result<()> {
-    let engine = choreo::lm::engine::Engine::new(cli.runtime, cli.ort_lib.as_deref())?;
+    // The trainer checks exported graphs: the runtime runs them itself,
+    // not choreo's local kernel (which is checked against them at load).
+    let engine = choreo::lm::engine::Engine::new(cli.runtime, cli.ort_lib.as_deref())?
+        .with_local_kernel(false);
     match cli.cmd {
         Cmd::Survey { data, json } => survey(&data, json),
         Cmd::FitHeads {

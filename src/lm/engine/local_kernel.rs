@@ -215,6 +215,7 @@ struct KernelState {
     att: Vec<f32>,
     f: Vec<f32>,
     scores: Vec<f32>,
+    live: Vec<usize>,
 }
 
 impl KernelState {
@@ -229,6 +230,7 @@ impl KernelState {
             att: Vec::new(),
             f: Vec::new(),
             scores: Vec::new(),
+            live: Vec::new(),
         }
     }
 }
@@ -328,7 +330,9 @@ impl GraphState for KernelState {
         }
         // The keys that count: the filled cache rows (bias 0); the new
         // position (the bias's last entry) always does.
-        let live: Vec<usize> = (0..cap).filter(|&j| bias[j] > -1e8).collect();
+        let mut live = std::mem::take(&mut self.live);
+        live.clear();
+        live.extend((0..cap).filter(|&j| bias[j] > -1e8));
         let scale = 1.0 / (dh as f32).sqrt();
         let nout = 2 + 2 * w.blocks.len();
         if out.0.len() != nout {
@@ -394,6 +398,7 @@ impl GraphState for KernelState {
             gemm(&self.f, n, &blk.fc2.0, &blk.fc2.1, &mut self.a);
             self.x.iter_mut().zip(&self.a).for_each(|(x, f)| *x += f);
         }
+        self.live = live;
         layer_norm(&self.x, d, &w.ln, w.eps, &mut self.a);
         for (i, head) in [&w.rel, &w.abs].into_iter().enumerate() {
             let m = head.1.len();
