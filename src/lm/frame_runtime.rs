@@ -75,7 +75,7 @@ impl FrameSession {
                 (c.local_layers, c.local_heads, c.ln_eps as f32),
             ) {
                 Ok((k, diff)) => {
-                    tracing::debug!(
+                    tracing::info!(
                         "{}: local step on choreo's kernel (probe within {diff:e} of the graph)",
                         name(&manifest.local_onnx)
                     );
@@ -83,7 +83,7 @@ impl FrameSession {
                 }
                 Err(why) => {
                     tracing::warn!(
-                        "{}: the local step stays on {}: {why}",
+                        "{}: the local step stays on {}: {why} (`choreo-train upgrade-frame --model DIR` rewrites an older local graph in today's form)",
                         name(&manifest.local_onnx),
                         engine.runtime().name()
                     );

@@ -1,10 +1,10 @@
 //! choreo's own kernel for the frame model's local step: the small
 //! decoder that runs once a slot (42 times a frame) for every candidate
-//! frame side by side. On tract its batch-4 step cost 0.14 ms, two thirds
-//! of it tract's per-operator overhead (the packing of each product's
-//! inputs, ~115 operators a step for about a million multiply-adds) rather
-//! than arithmetic (bench/RESULTS.md, "tract's operators one by one");
-//! here the same step is plain loops over the graph's own weights:
+//! frame side by side. On tract its batch-4 step cost 0.14 ms for about
+//! 0.6 million multiply-adds: ~115 operators, each product with its
+//! inputs packed first and each costing microseconds whatever its size
+//! (bench/RESULTS.md, "tract's operators one by one"). Here the same step
+//! is plain loops over the graph's own weights:
 //! row-major products whose inner loop the compiler vectorises (AVX2 and
 //! FMA where the CPU has them, picked at run time; SSE otherwise), the
 //! keys and values read in place from the caches, and the global state's
