@@ -263,7 +263,7 @@ pub async fn start(cfg: &ServeConfig) -> Result<Running> {
     .await?
     .with_channel_cache(cfg.channel_cache_mb << 20);
     let engine = crate::lm::engine::Engine::new(cfg.runtime, cfg.ort_lib.as_deref())?
-        .with_local_kernel(cfg.local_step == crate::lm::engine::LocalStep::Kernel);
+        .with_local_step(cfg.local_step);
     tracing::info!("model runtime: {}", engine.runtime().name());
     let model = if cfg.model.exists() {
         let t0 = std::time::Instant::now();

@@ -1846,7 +1846,8 @@ fn an_older_local_graph_draws_candidates_one_at_a_time_until_upgraded() {
     std::fs::write(&mf, text.replace(&old, &new)).unwrap();
     // On the runtime's run of the graph (choreo's local kernel batches
     // any graph it reproduces: checked on one row here).
-    let graph = choreo::lm::engine::Engine::tract().with_local_kernel(false);
+    let graph =
+        choreo::lm::engine::Engine::tract().with_local_step(choreo::lm::engine::LocalStep::Graph);
     assert!(!FrameSession::load_with(dir.path(), &graph)
         .unwrap()
         .batches());

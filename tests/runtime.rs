@@ -8,7 +8,7 @@
 #![cfg(feature = "train")]
 
 use candle_core::Device;
-use choreo::lm::engine::{Engine, Runtime};
+use choreo::lm::engine::{Engine, LocalStep, Runtime};
 use choreo::lm::frame_runtime::FrameSession;
 use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
@@ -133,8 +133,13 @@ fn tract_and_ort_agree_on_the_frame_model() {
     let dir = exported(&v);
     // Both runtimes' own runs of the graphs (not choreo's local kernel,
     // which `the_local_kernel_is_the_graph` checks).
-    let t = FrameSession::load_with(dir.path(), &Engine::tract().with_local_kernel(false)).unwrap();
-    let o = FrameSession::load_with(dir.path(), &ort.clone().with_local_kernel(false)).unwrap();
+    let t = FrameSession::load_with(
+        dir.path(),
+        &Engine::tract().with_local_step(LocalStep::Graph),
+    )
+    .unwrap();
+    let o = FrameSession::load_with(dir.path(), &ort.clone().with_local_step(LocalStep::Graph))
+        .unwrap();
     assert_eq!((t.local_step_on(), o.local_step_on()), ("tract", "ort"));
     let mut labels = Labels::new();
     labels.insert("style".into(), "sad".into());
@@ -225,7 +230,8 @@ fn the_local_kernel_is_the_graph() {
         (bundled, Vec::new()),
     ] {
         let k = FrameSession::load_with(&path, &Engine::tract()).unwrap();
-        let g = FrameSession::load_with(&path, &Engine::tract().with_local_kernel(false)).unwrap();
+        let g = FrameSession::load_with(&path, &Engine::tract().with_local_step(LocalStep::Graph))
+            .unwrap();
         assert_eq!((k.local_step_on(), g.local_step_on()), ("kernel", "tract"));
         let c = k.config();
         // The bundled model: mid-range frames with a slow sweep, so the
@@ -273,7 +279,10 @@ fn a_labelled_stream_on_the_kernel_is_the_stream_on_the_graph() {
             .collect()
     };
     let kernel = run(Engine::tract());
-    assert_eq!(kernel, run(Engine::tract().with_local_kernel(false)));
+    assert_eq!(
+        kernel,
+        run(Engine::tract().with_local_step(LocalStep::Graph))
+    );
 }
 
 #[test]

@@ -188,7 +188,7 @@ pub fn run(cmd: BenchCmd) -> Result<()> {
             json,
         } => {
             let engine = choreo::lm::engine::Engine::new(runtime, ort_lib.as_deref())?
-                .with_local_kernel(local_step == choreo::lm::engine::LocalStep::Kernel);
+                .with_local_step(local_step);
             let duet = duet.as_deref().map(|f| (f, duet_joints.as_slice()));
             let mut labels = choreo::motion::Labels::new();
             for l in &label {

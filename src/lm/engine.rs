@@ -1,7 +1,7 @@
 //! The model runtime behind one small trait: a loaded ONNX graph
 //! ([`Graph`]) spawns run states ([`GraphState`]), each owned by one
 //! generator or request and reused from step to step. Two runtimes
-//! implement it: tract (always built) and onnxruntime through `ort`
+//! implement it: tract (always built; `tract_rt.rs`) and onnxruntime through `ort`
 //! (cargo feature `onnxruntime`, loaded at run time from the library the
 //! `onnxruntime` pip wheel ships). The frame model, the learned
 //! in-betweener and, on onnxruntime, the flat GPT run through it (the flat
@@ -62,7 +62,7 @@ impl std::str::FromStr for Runtime {
     }
 }
 
-/// What runs the frame model's local step ([`Engine::with_local_kernel`]).
+/// What runs the frame model's local step ([`Engine::with_local_step`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LocalStep {
     /// choreo's own kernel ([`local_kernel`]), where it reproduces the graph.
@@ -176,7 +176,6 @@ impl Cache {
         }
     }
 
-    #[cfg_attr(not(feature = "onnxruntime"), allow(dead_code))]
     fn shape(&self) -> [usize; 4] {
         [self.batch, self.heads, self.cap, self.dh]
     }
@@ -300,10 +299,9 @@ fn has_batch(bytes: &[u8], sym: &str) -> bool {
 #[derive(Clone)]
 pub struct Engine {
     runtime: Runtime,
-    /// Whether the frame model's local step runs on choreo's own kernel
-    /// (where it reproduces the graph; [`local_kernel::checked`]) rather
-    /// than on the runtime.
-    local_kernel: bool,
+    /// What runs the frame model's local step: choreo's own kernel (where
+    /// it reproduces the graph; [`local_kernel::checked`]) or the runtime.
+    local_step: LocalStep,
     #[cfg(feature = "onnxruntime")]
     ort: Option<Arc<ort_rt::OrtEnv>>,
 }
@@ -318,7 +316,7 @@ impl Engine {
     pub fn tract() -> Engine {
         Engine {
             runtime: Runtime::Tract,
-            local_kernel: true,
+            local_step: LocalStep::Kernel,
             #[cfg(feature = "onnxruntime")]
             ort: None,
         }
@@ -366,7 +364,7 @@ impl Engine {
         let env = ort_rt::OrtEnv::open(&ort_library(lib)?)?;
         Ok(Engine {
             runtime: Runtime::Ort,
-            local_kernel: true,
+            local_step: LocalStep::Kernel,
             ort: Some(env),
         })
     }
@@ -376,50 +374,23 @@ impl Engine {
     }
 
     /// This engine with the frame model's local step on choreo's kernel
-    /// (`true`, the default) or on the runtime's own run of the graph.
-    pub fn with_local_kernel(mut self, on: bool) -> Engine {
-        self.local_kernel = on;
+    /// (the default) or on the runtime's own run of the graph.
+    pub fn with_local_step(mut self, step: LocalStep) -> Engine {
+        self.local_step = step;
         self
     }
 
-    pub fn local_kernel(&self) -> bool {
-        self.local_kernel
+    pub fn local_step(&self) -> LocalStep {
+        self.local_step
     }
 
     /// Loads an ONNX graph (static shapes, as the trainer exports them),
     /// checking its input names and output count against `spec`.
     pub fn load(&self, bytes: &[u8], spec: &GraphSpec) -> Result<Arc<dyn Graph>, LmError> {
-        let bad = |e: String| LmError::invalid(spec.file, "graph", e);
         let batch = spec.batch.filter(|s| has_batch(bytes, s));
         match self.runtime {
             // An engine's runtime is never Auto (Engine::new resolves it).
-            Runtime::Tract | Runtime::Auto => {
-                let model = tract_onnx::onnx()
-                    .model_for_read(&mut std::io::Cursor::new(bytes))
-                    .map_err(|e| bad(e.to_string()))?;
-                check_names(&model, spec).map_err(|e| bad(e.to_string()))?;
-                let model = pin_shapes(model, spec.f32_shapes).map_err(|e| bad(e.to_string()))?;
-                let typed = model
-                    .into_typed()
-                    .and_then(|m| m.into_decluttered())
-                    .and_then(softmax::rows_by_plain_code)
-                    .map_err(|e| bad(e.to_string()))?;
-                if let Some(sym) = batch {
-                    let sym = typed.sym(sym);
-                    let g = TractBatched {
-                        typed,
-                        sym,
-                        plans: Default::default(),
-                    };
-                    g.plan(1).map_err(|e| bad(e.to_string()))?;
-                    return Ok(Arc::new(g));
-                }
-                let plan = typed
-                    .into_optimized()
-                    .and_then(|m| m.into_runnable())
-                    .map_err(|e| bad(e.to_string()))?;
-                Ok(Arc::new(TractGraph(plan)))
-            }
+            Runtime::Tract | Runtime::Auto => tract_rt::load(bytes, spec, batch),
             Runtime::Ort => {
                 #[cfg(feature = "onnxruntime")]
                 {
@@ -461,161 +432,10 @@ pub fn ort_library(lib: Option<&Path>) -> Result<PathBuf, LmError> {
     Ok(path)
 }
 
-fn check_names(model: &tract_onnx::prelude::InferenceModel, spec: &GraphSpec) -> TractResult<()> {
-    let got_in: Vec<String> = model
-        .input_outlets()?
-        .iter()
-        .map(|o| model.node(o.node).name.clone())
-        .collect();
-    let got_out = model.output_outlets()?.len();
-    if got_in != spec.inputs || got_out != spec.outputs {
-        anyhow::bail!(
-            "the graph's inputs {got_in:?} (and {got_out} outputs) are not the {:?} (and {} outputs) the manifest's config implies",
-            spec.inputs,
-            spec.outputs
-        );
-    }
-    Ok(())
-}
-
-fn pin_shapes(mut model: InferenceModel, shapes: &[Vec<Dim>]) -> TractResult<InferenceModel> {
-    for (i, dims) in shapes.iter().enumerate() {
-        let dims: Vec<TDim> = dims
-            .iter()
-            .map(|d| match d {
-                Dim::N(n) => n.to_dim(),
-                Dim::Sym(s) => model.sym(s).into(),
-            })
-            .collect();
-        model = model.with_input_fact(i, f32::fact(dims).into())?;
-    }
-    Ok(model)
-}
-
-struct TractGraph(Arc<TypedRunnableModel>);
-
-impl Graph for TractGraph {
-    fn spawn(&self) -> Result<Box<dyn GraphState>, LmError> {
-        Ok(Box::new(TractState(self.0.spawn().map_err(rt)?)))
-    }
-}
-
-/// A tract graph with a batch symbol: one plan per batch size, each
-/// optimised for it when first asked for (a few milliseconds).
-struct TractBatched {
-    typed: TypedModel,
-    sym: Symbol,
-    plans: std::sync::Mutex<std::collections::HashMap<usize, Arc<TypedRunnableModel>>>,
-}
-
-impl TractBatched {
-    fn plan(&self, n: usize) -> TractResult<Arc<TypedRunnableModel>> {
-        let mut plans = self
-            .plans
-            .lock()
-            .map_err(|_| anyhow::anyhow!("plan cache poisoned"))?;
-        if let Some(p) = plans.get(&n) {
-            return Ok(p.clone());
-        }
-        let subs = std::iter::once((self.sym.clone(), TDim::Val(n as i64))).collect();
-        let p = self
-            .typed
-            .set_symbols(&subs)?
-            .into_optimized()?
-            .into_runnable()?;
-        plans.insert(n, p.clone());
-        Ok(p)
-    }
-}
-
-impl Graph for TractBatched {
-    fn spawn(&self) -> Result<Box<dyn GraphState>, LmError> {
-        Ok(Box::new(TractState(
-            self.plan(1).map_err(rt)?.spawn().map_err(rt)?,
-        )))
-    }
-
-    fn batches(&self) -> bool {
-        true
-    }
-
-    fn spawn_batch(&self, n: usize) -> Result<Option<Box<dyn GraphState>>, LmError> {
-        let st = self.plan(n).map_err(rt)?.spawn().map_err(rt)?;
-        Ok(Some(Box::new(TractState(st))))
-    }
-}
-
-struct TractState(TypedSimpleState);
-
-/// Marks the vector registers' upper halves clean (`vzeroupper`); called
-/// after each operator tract runs (and after each flat-GPT step). tract's
-/// AVX-512 matrix kernels return with them dirty, and until something
-/// clears them every SSE instruction that follows pays for a merge with
-/// the stale upper half: this crate is built for baseline x86-64, so
-/// choreo's drawing, scoring and posture work between two steps, and
-/// tract's own code between two kernels, ran slowed. On the bundled frame
-/// model the labelled default's frame on tract went from 11.8–12.0 to
-/// 8.9–9.6 ms p50 cleaning after each run, 9.2–9.3 after each operator
-/// (bench/RESULTS.md, "tract's dirty upper registers"). onnxruntime
-/// returns with them clean.
-#[inline]
-pub(crate) fn clean_upper_state() {
-    #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx") {
-        // SAFETY: the CPU has AVX (checked above); `vzeroupper` only
-        // zeroes the registers' upper halves, which hold nothing live
-        // between two calls into tract.
-        unsafe { std::arch::x86_64::_mm256_zeroupper() }
-    }
-}
-
-impl GraphState for TractState {
-    fn run(
-        &mut self,
-        inputs: &[In<'_>],
-        cache: Option<&Cache>,
-        out: &mut Outputs,
-    ) -> Result<(), LmError> {
-        let mut tv: TVec<TValue> = tvec![];
-        for i in inputs {
-            let t = match i {
-                In::F32(s, d) => Tensor::from_shape(s, d),
-                In::I64(s, d) => Tensor::from_shape(s, d),
-            }
-            .map_err(rt)?;
-            tv.push(t.into_tvalue());
-        }
-        if let Some(c) = cache {
-            for t in c.tensors() {
-                tv.push(TValue::from_const(t.clone()));
-            }
-        }
-        // Each operator as tract runs it, the upper registers cleaned after
-        // it; the turn's values (the cache tensors' clones among them) are
-        // dropped at the end, so the next in-place write to a cache does not
-        // copy it.
-        let res = self
-            .0
-            .run_plan_with_eval(tv, |ctx, st, node, input| {
-                let r = tract_onnx::tract_core::plan::eval(ctx, st, node, input);
-                clean_upper_state();
-                r
-            })
-            .map_err(rt)?;
-        for (i, t) in res.iter().enumerate() {
-            let data = t
-                .try_as_plain_ram()
-                .map_err(rt)?
-                .as_slice::<f32>()
-                .map_err(rt)?;
-            out.set(i, t.shape(), data);
-        }
-        out.0.truncate(res.len());
-        Ok(())
-    }
-}
-
+pub(crate) mod kernels;
 pub mod local_kernel;
 #[cfg(feature = "onnxruntime")]
 mod ort_rt;
 mod softmax;
+mod tract_rt;
+pub(crate) use tract_rt::clean_upper_state;

@@ -68,7 +68,7 @@ impl FrameSession {
         )?;
         // The local step on choreo's kernel where it reproduces the graph
         // (checked on probe steps at every load), else on the runtime.
-        let (local, local_on) = if engine.local_kernel() {
+        let (local, local_on) = if engine.local_step() == super::engine::LocalStep::Kernel {
             match super::engine::local_kernel::checked(
                 local.as_ref(),
                 &l,

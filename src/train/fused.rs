@@ -64,7 +64,7 @@ const FRAC_1_SQRT_2: f32 = std::f32::consts::FRAC_1_SQRT_2;
 /// 1/√(2π).
 const INV_SQRT_2PI: f32 = 0.398_942_3;
 
-use crate::lm::engine::local_kernel::erf;
+use crate::lm::engine::kernels::erf;
 
 /// Φ(x), the standard normal's distribution function.
 fn cdf(v: f32) -> f32 {

@@ -348,7 +348,7 @@ fn run(cli: Cli) -> Result<()> {
     // The trainer checks exported graphs: the runtime runs them itself,
     // not choreo's local kernel (which is checked against them at load).
     let engine = choreo::lm::engine::Engine::new(cli.runtime, cli.ort_lib.as_deref())?
-        .with_local_kernel(false);
+        .with_local_step(choreo::lm::engine::LocalStep::Graph);
     match cli.cmd {
         Cmd::Survey { data, json } => survey(&data, json),
         Cmd::FitHeads {
