@@ -272,6 +272,7 @@ fn generation_streams_the_same_frames_and_keeps_prompts() {
         ease: 0.0,
         matching: 0.0,
         travel: 1.0,
+        skate: 0.0,
     };
     // More frames than the context: the window slides.
     let n = 2 * net.cfg.max_frames + 5;

@@ -185,6 +185,7 @@ fn streaming_equals_one_shot_and_decodes_to_valid_motion() {
         ease: 0.0,
         matching: 0.0,
         travel: 1.0,
+        skate: 0.0,
     };
     // 11 frames: the window (4) slides several times.
     let run = |n: usize| {

@@ -356,6 +356,7 @@ fn an_ort_stream_is_the_one_shot_output_for_one_seed() {
         ease: 0.0,
         matching: 0.0,
         travel: 1.0,
+        skate: 0.0,
     };
     // Past the context, so the window slides.
     let n = 2 * model.context_frames() + 3;

@@ -658,6 +658,7 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
             ease: 0.0,
             matching: 0.0,
             travel: 0.0,
+            skate: 0.0,
         }),
         exemplar: String::new(),
         candidates: 0,

@@ -104,6 +104,11 @@ impl Choreo for ChoreoGrpc {
                 } else {
                     r.sampling.travel
                 },
+                skate: if r.sampling.skate == 0.0 {
+                    -1.0
+                } else {
+                    r.sampling.skate
+                },
             }),
         }))
     }

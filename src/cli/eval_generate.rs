@@ -7,23 +7,28 @@ use choreo::lm::model::MotionModel;
 use choreo::lm::Sampling;
 use std::path::{Path, PathBuf};
 
-/// `T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M[:V]]]]]]]]]]]` (temperature,
+/// `T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M[:V[:S]]]]]]]]]]]]` (temperature,
 /// top-k, top-p, guidance, keep_near, max_jump, posture, context, draws,
-/// pace, jerk, ease, matching, travel), or `greedy`.
+/// pace, jerk, ease, matching, travel, skate), or `greedy`.
 pub fn parse_sampling(s: &str) -> Result<Sampling> {
     if s == "greedy" {
         return Ok(Sampling::default());
     }
     let parts: Vec<&str> = s.split(':').collect();
-    if !(3..=14).contains(&parts.len()) {
+    if !(3..=15).contains(&parts.len()) {
         bail!(
-            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M[:V]]]]]]]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context[:draws[:pace[:jerk[:ease[:matching[:travel]]]]]]]]]]]) or greedy"
+            "--sampling: '{s}' is not T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M[:V[:S]]]]]]]]]]]] (temperature:top_k:top_p[:guidance[:keep_near[:max_jump[:posture[:context[:draws[:pace[:jerk[:ease[:matching[:travel[:skate]]]]]]]]]]]]) or greedy"
         );
     }
     // The optional fields, each its "off" value when left out.
     let field = |i: usize, off: &'static str| parts.get(i).copied().unwrap_or(off);
     let (t, k, p) = (parts[0], parts[1], parts[2]);
-    let (e, m, v) = (field(11, "0"), field(12, "0"), field(13, "1"));
+    let (e, m, v, sk) = (
+        field(11, "0"),
+        field(12, "0"),
+        field(13, "1"),
+        field(14, "0"),
+    );
     let (g, n, j, w, c, d, a, r) = (
         field(3, "1"),
         field(4, "0"),
@@ -78,6 +83,9 @@ pub fn parse_sampling(s: &str) -> Result<Sampling> {
         travel: v
             .parse()
             .with_context(|| format!("--sampling: travel '{v}'"))?,
+        skate: sk
+            .parse()
+            .with_context(|| format!("--sampling: skate '{sk}'"))?,
     };
     sm.validate()
         .map_err(|e| anyhow::anyhow!("--sampling: {e}"))?;

@@ -102,6 +102,7 @@ pub fn sampling_name(s: &Sampling) -> String {
         ("ease", s.ease, 0.0),
         ("matching", s.matching, 0.0),
         ("travel", s.travel, 1.0),
+        ("skate", s.skate, 0.0),
     ];
     let mut name = format!("t={} top_k={} top_p={}", s.temperature, s.top_k, s.top_p);
     for (field, value, off) in extras {

@@ -296,6 +296,10 @@ pub struct KindSampling {
     /// (`sampling.matching`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub matching: Option<f64>,
+    /// The skate price (`sampling.skate`), where `draws` leaves
+    /// candidates to choose among.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub skate: Option<f64>,
 }
 
 pub const FRAME_KIND: &str = "motion-frame-lm";

@@ -56,6 +56,9 @@ pub struct FrameGenerator {
     /// The asked-for labels' real frames the joints follow
     /// (`sampling.matching`), if any.
     library: Option<Arc<super::matching::Library>>,
+    /// The planted-feet tracker the skate price reads (`sampling.skate`),
+    /// if any.
+    feet: Option<super::skate::Feet>,
     pub produced: usize,
     /// Per class kind (the config's order), the class heads' logits summed
     /// over the frames produced so far: read from the unlabelled track
@@ -155,9 +158,15 @@ impl FrameGenerator {
         } else {
             None
         };
+        let feet = if sampling.skate > 0.0 && sampling.draws > 1 {
+            super::skate::Feet::new(&session.manifest.vocabulary, &frames)
+        } else {
+            None
+        };
         let lbatch = batch_state(&session, &sampling)?;
         let mut g = FrameGenerator {
             library,
+            feet,
             ease,
             session,
             tracks,
@@ -206,6 +215,7 @@ impl FrameGenerator {
             pace: self.pace.clone(),
             ease: self.ease.clone(),
             library: self.library.clone(),
+            feet: self.feet.clone(),
             sampling: Sampling {
                 seed,
                 ..self.sampling.clone()
@@ -369,8 +379,23 @@ impl FrameGenerator {
             ),
             _ => None,
         };
+        // The skate price (it needs the frame before).
+        let skates: Option<Vec<f64>> = match (self.feet.as_mut(), p1.as_deref()) {
+            (Some(feet), Some(p)) if cands.len() > 1 => {
+                let fs: Vec<&[u32]> = cands.iter().map(|(f, _, _)| f.as_slice()).collect();
+                let k = self.sampling.skate;
+                Some(
+                    feet.costs(vocab, p, &fs)
+                        .into_iter()
+                        .map(|x| k * x)
+                        .collect(),
+                )
+            }
+            _ => None,
+        };
         let (mut frame, kept) = super::typical::most_typical(cands, |i| {
             jerks.as_ref().map_or(0.0, |j| j[i])
+                + skates.as_ref().map_or(0.0, |s| s[i])
                 + self
                     .pace
                     .as_ref()

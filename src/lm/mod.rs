@@ -36,6 +36,7 @@ pub mod pace;
 pub mod posture;
 pub mod runtime;
 pub mod sampling;
+pub mod skate;
 pub mod steer;
 pub mod typical;
 

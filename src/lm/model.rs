@@ -30,6 +30,7 @@ pub struct Named {
     pub jerk: bool,
     pub ease: bool,
     pub matching: bool,
+    pub skate: bool,
 }
 
 /// A loaded motion model of either kind: immutable, shared by requests.
@@ -177,6 +178,11 @@ impl MotionModel {
                 s.jerk = a;
             }
         }
+        if let (false, Some(a)) = (named.skate, d.skate) {
+            if s.draws > 1 {
+                s.skate = a;
+            }
+        }
         // The ease loosens a pull: a default one only where there is one.
         if let (false, Some(a)) = (named.ease, d.ease) {
             if s.posture > 0.0 {
@@ -208,6 +214,7 @@ impl MotionModel {
                 out.jerk = out.jerk.or(d.jerk);
                 out.ease = out.ease.or(d.ease);
                 out.matching = out.matching.or(d.matching);
+                out.skate = out.skate.or(d.skate);
             }
         }
         out

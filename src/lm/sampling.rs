@@ -97,6 +97,12 @@ pub struct Sampling {
     /// than real keeps the activity its root's drift gives the clip
     /// (docs/RESULTS.md, "Session 48").
     pub travel: f64,
+    /// Frame model only, with `draws` ≥ 2: how strongly the kept
+    /// candidate keeps planted feet still: the summed ground speed (m/s)
+    /// at which the ankles that were on the floor in the frame before
+    /// would move into it ([`super::skate`]). Added to each candidate's
+    /// distance from typical, in nats per m/s; 0 = off.
+    pub skate: f64,
 }
 
 impl Default for Sampling {
@@ -117,6 +123,7 @@ impl Default for Sampling {
             ease: 0.0,
             matching: 0.0,
             travel: 1.0,
+            skate: 0.0,
         }
     }
 }
@@ -150,6 +157,7 @@ pub const RECOMMENDED: Sampling = Sampling {
     ease: 0.0,
     matching: 0.0,
     travel: 1.0,
+    skate: 0.0,
 };
 
 /// The most candidate frames `sampling.draws` may ask for.
@@ -207,8 +215,12 @@ impl Sampling {
                 format!("{} (want 1 to {MAX_DRAWS}; 1 = plain drawing)", self.draws),
             ));
         }
-        // The candidates' prices: the pace hold and the jerk price.
-        for (field, v) in [("sampling.pace", self.pace), ("sampling.jerk", self.jerk)] {
+        // The candidates' prices: the pace hold, the jerk and skate prices.
+        for (field, v) in [
+            ("sampling.pace", self.pace),
+            ("sampling.jerk", self.jerk),
+            ("sampling.skate", self.skate),
+        ] {
             if !(v.is_finite() && (0.0..=100.0).contains(&v)) {
                 return Err(LmError::invalid(
                     "request",

@@ -94,6 +94,7 @@ pub(super) fn named(s: &Option<pb::Sampling>) -> crate::service::generate::Named
         jerk: s.jerk != 0.0,
         ease: s.ease != 0.0,
         matching: s.matching != 0.0,
+        skate: s.skate != 0.0,
     }
 }
 
@@ -158,6 +159,12 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
     } else {
         s.travel.max(0.0)
     };
+    // proto3 again: 0 = the model's default price, negative = none.
+    let skate = if s.skate == 0.0 {
+        r.skate
+    } else {
+        s.skate.max(0.0)
+    };
     if !explicit(&s) {
         return crate::lm::Sampling {
             guidance,
@@ -170,6 +177,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
             ease,
             matching,
             travel,
+            skate,
             ..r
         };
     }
@@ -189,6 +197,7 @@ pub(super) fn sampling(s: Option<pb::Sampling>) -> crate::lm::Sampling {
         ease,
         matching,
         travel,
+        skate,
     }
 }
 

@@ -232,6 +232,12 @@ pub struct SamplingJson {
     /// strongly, the default; 0 = the root's travel left to the model
     /// while the joints still follow the takes).
     pub travel: Option<f64>,
+    /// How strongly the kept candidate keeps planted feet still (the
+    /// ground speed, m/s, of the ankles on the floor in the frame before;
+    /// frame model, with `draws` 2 or more; 0 = off); absent = the model's
+    /// default for the label kinds asked for where `draws` leaves a
+    /// choice, else off.
+    pub skate: Option<f64>,
 }
 
 impl SamplingJson {
@@ -247,6 +253,7 @@ impl SamplingJson {
             jerk: self.jerk.is_some(),
             ease: self.ease.is_some(),
             matching: self.matching.is_some(),
+            skate: self.skate.is_some(),
         }
     }
 
@@ -271,6 +278,7 @@ impl SamplingJson {
                 ease: self.ease.unwrap_or(r.ease),
                 matching: self.matching.unwrap_or(r.matching),
                 travel: self.travel.unwrap_or(r.travel),
+                skate: self.skate.unwrap_or(r.skate),
                 ..r
             },
             Some(t) => crate::lm::Sampling {
@@ -289,6 +297,7 @@ impl SamplingJson {
                 ease: self.ease.unwrap_or(r.ease),
                 matching: self.matching.unwrap_or(r.matching),
                 travel: self.travel.unwrap_or(r.travel),
+                skate: self.skate.unwrap_or(r.skate),
             },
         }
     }
