@@ -493,3 +493,53 @@ fn the_flat_model_refuses_a_posture_pull_and_a_shorter_context() {
     let fl = m.vocabulary().frame_len();
     assert_eq!(g.next_frame(&vec![None; fl]).unwrap().len(), fl);
 }
+
+#[test]
+fn the_skate_price_keeps_planted_feet_stiller() {
+    // The bundled model, genre HO at its default (four candidates a
+    // frame), three seeds of 120 frames each with and without the price:
+    // the ankles' ground speed while within 3 cm of the clip's floor (what
+    // `eval generate`'s skating column measures), against the same count
+    // of frames.
+    let bundled = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default");
+    let model = MotionModel::load(&bundled).unwrap();
+    let v = model.vocabulary().clone();
+    let fl = v.frame_len();
+    let mut labels = Labels::new();
+    labels.insert("genre".into(), "HO".into());
+    let slide = |skate: f64| -> (f64, usize) {
+        let (mut sum, mut n) = (0.0, 0usize);
+        for seed in 0..3 {
+            let mut s = Sampling::recommended(seed);
+            model.fill_defaults(&labels, &mut s, Default::default());
+            assert_eq!(s.draws, 4);
+            s.skate = skate;
+            let mut g = model.generator(&labels, &[], s).unwrap();
+            let toks: Vec<u32> = (0..120)
+                .flat_map(|_| g.next_frame(&vec![None; fl]).unwrap())
+                .collect();
+            let m = v.decode_motion(&toks, "clip").unwrap();
+            let p = m.positions();
+            let j = m.joints();
+            for name in ["Left_Ankle", "Right_Ankle"] {
+                let a = m.skeleton.index_of(name).unwrap();
+                let floor = (0..m.frames())
+                    .map(|f| p[f * j + a][1])
+                    .fold(f64::INFINITY, f64::min);
+                for f in 1..m.frames() {
+                    let (x, y) = (p[(f - 1) * j + a], p[f * j + a]);
+                    if y[1] < floor + 0.03 {
+                        sum += ((y[0] - x[0]).powi(2) + (y[2] - x[2]).powi(2)).sqrt() * m.fps;
+                        n += 1;
+                    }
+                }
+            }
+        }
+        (sum / n.max(1) as f64, n)
+    };
+    let (free, nf) = slide(0.0);
+    let (priced, np) = slide(10.0);
+    eprintln!("planted ankles' ground speed: {free:.3} m/s ({nf} frames) without the price, {priced:.3} ({np}) with skate 10");
+    assert!(nf > 50 && np > 50, "{nf} {np}");
+    assert!(priced < 0.8 * free, "{priced} against {free}");
+}

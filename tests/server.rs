@@ -967,26 +967,27 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
         generate_refused(h, far, &format!("sampling.{field}")).await;
     }
 
-    // pace (the hold on the continued motion's pace) and jerk (the price
-    // on each candidate's jerk), which choose among the candidate frames:
-    // the same frames over both transports, the answer says it; with one
-    // candidate (nothing to choose among) or past 100 a 400 naming it.
-    for (field, value) in [("pace", 8.0), ("jerk", 2.0)] {
+    // pace (the hold on the continued motion's pace), jerk (the price on
+    // each candidate's jerk) and skate (the price on its planted feet
+    // sliding), which choose among the candidate frames: the same frames
+    // over both transports, the answer says it; with one candidate
+    // (nothing to choose among) or past 100 a 400 naming it.
+    for (field, value) in [("pace", 8.0), ("jerk", 2.0), ("skate", 5.0)] {
         let mut g = greq.clone();
         let gs = g.sampling.as_mut().unwrap();
         gs.draws = 3;
-        *(if field == "pace" {
-            &mut gs.pace
-        } else {
-            &mut gs.jerk
+        *(match field {
+            "pace" => &mut gs.pace,
+            "jerk" => &mut gs.jerk,
+            _ => &mut gs.skate,
         }) = value;
         let g = client.generate(g).await.unwrap().into_inner();
         let echo = g.sampling.as_ref().unwrap();
         assert_eq!(
-            if field == "pace" {
-                echo.pace
-            } else {
-                echo.jerk
+            match field {
+                "pace" => echo.pace,
+                "jerk" => echo.jerk,
+                _ => echo.skate,
             },
             value
         );

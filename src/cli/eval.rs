@@ -36,8 +36,8 @@ pub enum EvalCmd {
         /// (a short take's features average over fewer frames).
         #[arg(long, default_value = "fixed")]
         lengths: String,
-        /// Sampling settings, T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M[:V]]]]]]]]]]] (temperature:top_k:top_p
-        /// [:guidance[:keep_near[:max_jump[:posture[:context[:draws[:pace[:jerk[:ease[:matching[:travel]]]]]]]]]]]), greedy,
+        /// Sampling settings, T:K:P[:G[:N[:J[:W[:C[:D[:A[:R[:E[:M[:V[:S]]]]]]]]]]]] (temperature:top_k:top_p
+        /// [:guidance[:keep_near[:max_jump[:posture[:context[:draws[:pace[:jerk[:ease[:matching[:travel[:skate]]]]]]]]]]]]), greedy,
         /// or `default`: what a request for the label kind naming no
         /// sampling gets (the model's per-kind defaults filled in). J `auto`
         /// takes the model's default for the label kind, as a request naming
