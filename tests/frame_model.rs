@@ -1955,10 +1955,19 @@ fn a_resumed_flat_run_takes_a_new_total() {
         eval_every: 2,
         seed: 3,
         max_seconds: 0.0,
+        corpus_weights: Default::default(),
         export: false,
         lr_sweep: false,
     };
     let engine = choreo::lm::engine::Engine::tract();
+    // A corpus weight for a corpus the run does not read is refused by name.
+    let mut bad = run(false, Some(2));
+    bad.corpus_weights.insert("nope".into(), 2.0);
+    let e = train(&bad, |_, _| Ok((v.clone(), corpus(&v))), &engine)
+        .err()
+        .expect("an unknown corpus is refused")
+        .to_string();
+    assert!(e.contains("--corpus-weight") && e.contains("nope"), "{e}");
     let go = |r: FlatRun| {
         let v = v.clone();
         train(&r, move |_, _| Ok((v.clone(), corpus(&v))), &engine).unwrap()

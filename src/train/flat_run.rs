@@ -50,6 +50,10 @@ pub struct FlatRun {
     pub seed: u64,
     /// Stop after this many seconds (0 = run all steps).
     pub max_seconds: f64,
+    /// Per corpus, how many times as often its training frames are drawn
+    /// as a length-weighted draw would (empty = every frame alike). A
+    /// resumed run keeps its own unless new ones are given.
+    pub corpus_weights: std::collections::BTreeMap<String, f64>,
     /// Export ONNX + manifest to `out/export` at the end.
     pub export: bool,
     /// Instead of training: sweep the learning rate from 1e-6 to 1 over
@@ -123,7 +127,7 @@ pub fn train(
         classify_fraction: if a.classify.is_empty() { 0.0 } else { 0.5 },
         class_weight: 1.0,
         mask_rate: 0.15,
-        corpus_weights: Default::default(),
+        corpus_weights: a.corpus_weights.clone(),
         balance: None,
         context_noise: 0.0,
         own_context: 0.0,
@@ -136,6 +140,9 @@ pub fn train(
                 st.settings.steps = n;
             }
             st.settings.max_seconds = a.max_seconds;
+            if !a.corpus_weights.is_empty() {
+                st.settings.corpus_weights = a.corpus_weights.clone();
+            }
             (st, m, o)
         }
         (None, Some((st, mut m, _))) => {
@@ -200,7 +207,22 @@ pub fn train(
         model.cfg.objective,
         state.regime
     );
-    let cum = super::cumulative(&corpus, fl);
+    // Length-weighted draws, each corpus's frames counted as often as its
+    // weight says (the frame trainer's draws, `FrameData`).
+    let cum = if s.corpus_weights.is_empty() {
+        super::cumulative(&corpus, fl)
+    } else {
+        let data = super::frame_run::FrameData::weighted(&corpus.train, fl, &s.corpus_weights)?;
+        tracing::info!(
+            "draws per corpus: {}",
+            data.shares(&corpus.train)
+                .iter()
+                .map(|(k, v)| format!("{k} {:.1} %", 100.0 * v))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        data.cum
+    };
     let mut rng = StdRng::seed_from_u64(s.seed.wrapping_add(state.step as u64));
     std::fs::create_dir_all(&a.out)?;
 

@@ -30,6 +30,7 @@ pub(crate) fn train(a: TrainArgs, engine: &choreo::lm::engine::Engine) -> Result
         eval_every: a.eval_every,
         seed: a.seed,
         max_seconds: a.max_seconds,
+        corpus_weights: super::frame::parse_corpus_weights(&a.corpus_weight)?,
         export: a.export,
         lr_sweep: a.lr_sweep,
     };

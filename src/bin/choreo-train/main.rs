@@ -129,6 +129,12 @@ struct TrainArgs {
     /// Stop after this many seconds (0 = run all steps).
     #[arg(long, default_value_t = 0.0)]
     max_seconds: f64,
+    /// Draw this corpus's training frames W times as often as a length-
+    /// weighted draw would (NAME=W, repeatable; e.g. `--corpus-weight
+    /// aistpp-vrm=2`), as `choreo-train frame` does. The held-out sets are
+    /// unchanged.
+    #[arg(long = "corpus-weight", value_name = "NAME=W")]
+    corpus_weight: Vec<String>,
     /// Export ONNX + manifest to OUT/export at the end.
     #[arg(long)]
     export: bool,
