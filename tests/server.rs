@@ -1311,21 +1311,22 @@ async fn generate_stream_duet_and_classify_with_the_bundled_model() {
     .unwrap();
     for want in [
         // The prompt request, the top_p 0, keep_near, max_jump, posture,
-        // context, draws, pace, jerk, ease, matching and travel ones, the
-        // nine per-kind defaults; the 400s: the bad exemplar, the bad feet,
-        // keep_near 65, max_jump 181, posture 11, context 201, draws 17,
-        // pace and jerk with one draw and at 101, ease without a pull and
+        // context, draws, pace, jerk, skate, ease, matching and travel
+        // ones, the nine per-kind defaults; the 400s: the bad exemplar, the
+        // bad feet, keep_near 65, max_jump 181, posture 11, context 201,
+        // draws 17, pace, jerk and skate with one draw and at 101, ease
+        // without a pull and
         // at 11, matching without labels and at 11, travel at 11, the bad
         // label and the over-long request; over gRPC the prompt request,
         // best of 3, steered, root model and feet, feet pinned, exemplar
         // none, top_p 0, keep_near 1, max_jump 2, posture 1.5, context 8,
-        // draws 2, pace 8, jerk 2, ease 2, matching 1, travel none, the
+        // draws 2, pace 8, jerk 2, skate 5, ease 2, matching 1, travel none, the
         // style, content and genre defaults; a steered stream, a feet
         // stream, a pinned stream, and a stream asking for 2 candidates
         // refused.
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 21",
-        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 18",
-        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 21",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"200\"} 22",
+        "choreo_requests_total{transport=\"http\",route=\"/v1/generate\",code=\"400\"} 20",
+        "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/Generate\",code=\"0\"} 22",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"0\"} 4",
         "choreo_requests_total{transport=\"grpc\",route=\"/choreo.v1.Choreo/GenerateStream\",code=\"3\"} 1",
         "choreo_request_seconds_bucket{transport=\"http\",route=\"/v1/classify\",code=\"200\",le=\"+Inf\"} 1",
