@@ -213,14 +213,7 @@ pub fn train(
         super::cumulative(&corpus, fl)
     } else {
         let data = super::frame_run::FrameData::weighted(&corpus.train, fl, &s.corpus_weights)?;
-        tracing::info!(
-            "draws per corpus: {}",
-            data.shares(&corpus.train)
-                .iter()
-                .map(|(k, v)| format!("{k} {:.1} %", 100.0 * v))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
+        data.log_shares(&corpus.train);
         data.cum
     };
     let mut rng = StdRng::seed_from_u64(s.seed.wrapping_add(state.step as u64));

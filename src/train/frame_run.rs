@@ -124,6 +124,18 @@ impl FrameData {
         Ok(FrameData { seqs, cum })
     }
 
+    /// Logs each corpus's share of the draws.
+    pub fn log_shares(&self, train: &[Sequence]) {
+        tracing::info!(
+            "draws per corpus: {}",
+            self.shares(train)
+                .iter()
+                .map(|(k, v)| format!("{k} {:.1} %", 100.0 * v))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+
     /// Each corpus's share of the draws, for the log.
     pub fn shares(&self, train: &[Sequence]) -> BTreeMap<String, f64> {
         let total = *self.cum.last().unwrap_or(&1) as f64;
@@ -418,14 +430,7 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
     };
     let s = st.settings.clone();
     let data = FrameData::balanced(&corpus.train, fl, &s.corpus_weights, s.balance.as_deref())?;
-    tracing::info!(
-        "draws per corpus: {}",
-        data.shares(&corpus.train)
-            .iter()
-            .map(|(k, v)| format!("{k} {:.1} %", 100.0 * v))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
+    data.log_shares(&corpus.train);
     tracing::info!(
         "frame model: {} parameters; global d {} × {} layers, local d {} × {} layers, context {} frames, change radius {}",
         net.params.count(),
