@@ -99,8 +99,8 @@ pub struct Sampling {
     pub travel: f64,
     /// Frame model only, with `draws` ≥ 2: how strongly the kept
     /// candidate keeps planted feet still: the summed ground speed (m/s)
-    /// at which the ankles that were on the floor in the frame before
-    /// would move into it ([`super::skate`]). Added to each candidate's
+    /// of the ankles on the floor both in the frame before and in it
+    /// ([`super::skate`]). Added to each candidate's
     /// distance from typical, in nats per m/s; 0 = off.
     pub skate: f64,
 }

@@ -6,9 +6,10 @@
 //! candidate, and moves over the ground between them; a candidate's cost
 //! is the summed ground speed (m/s) of its sliding ankles, the root's
 //! travel included (forward kinematics of the two frames, as the tokens
-//! decode). A foot that lifts off costs nothing: a step is not a slide. The generator adds `skate ×` that cost to each
-//! candidate's distance from typical ([`super::typical`]), in nats per
-//! m/s, and keeps the least.
+//! decode). A foot that lifts off costs nothing: a step is not a slide.
+//! The generator adds `skate ×` that cost to each candidate's distance
+//! from typical ([`super::typical`]), in nats per m/s, and keeps the
+//! least.
 //!
 //! Sliding feet are what the eye catches first in generated motion, and
 //! what `eval generate`'s skating column measures (ankles' ground speed
@@ -20,7 +21,8 @@
 use crate::tokenize::vocab::Vocabulary;
 
 /// An ankle this close above the lowest height the clip's ankles have
-/// reached (metres) is planted: its next ground movement costs.
+/// reached (metres), in the frame before and in the candidate, is
+/// planted: its ground movement between them costs.
 pub const PLANT_HEIGHT: f64 = 0.05;
 
 /// The clip's planted-feet tracker: the vocabulary's ankles and the lowest
@@ -74,10 +76,12 @@ impl Feet {
         Some(p.iter().map(|a| [a[0][1], a[1][1]]).collect())
     }
 
-    /// Each candidate's cost after `prev`: the summed ground speed (m/s)
-    /// of the ankles planted in `prev`, at `fps`. The floor first takes in
-    /// `prev`'s ankles (a clip without a seed starts on its first frame's
-    /// lower foot).
+    /// Each candidate's cost after `prev`: the summed ground speed (m/s,
+    /// at the vocabulary's frame rate) of the ankles low in both `prev`
+    /// and the candidate. The floor first takes in `prev`'s ankles (a clip
+    /// without a seed starts on its first frame's lower foot). Each pair
+    /// is decoded on its own, so the root's travel into the candidate is
+    /// its own velocity slots'.
     pub fn costs(&mut self, v: &Vocabulary, prev: &[u32], cands: &[&[u32]]) -> Vec<f64> {
         let fps = v.fps;
         let mut out = Vec::with_capacity(cands.len());

@@ -379,17 +379,11 @@ pub fn optimise(
     Ok(())
 }
 
-/// Cumulative frame counts for length-weighted sequence draws.
+/// Cumulative frame counts for length-weighted sequence draws (every
+/// corpus weighted alike).
 pub fn cumulative(corpus: &Corpus, fl: usize) -> Vec<usize> {
-    let mut acc = 0;
-    corpus
-        .train
-        .iter()
-        .map(|s| {
-            acc += s.frames(fl).max(1);
-            acc
-        })
-        .collect()
+    frame_run::draw_weights(&corpus.train, fl, &Default::default(), None)
+        .expect("no weights or balance to check")
 }
 
 pub fn device() -> Device {

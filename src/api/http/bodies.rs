@@ -233,7 +233,8 @@ pub struct SamplingJson {
     /// while the joints still follow the takes).
     pub travel: Option<f64>,
     /// How strongly the kept candidate keeps planted feet still (the
-    /// ground speed, m/s, of the ankles on the floor in the frame before;
+    /// ground speed, m/s, of the ankles on the floor in the frame before
+    /// and in it;
     /// frame model, with `draws` 2 or more; 0 = off); absent = the model's
     /// default for the label kinds asked for where `draws` leaves a
     /// choice, else off.
