@@ -4,9 +4,11 @@
 # time, then measured the same way (docs/RESULTS.md, "Flat against frame, same CPU
 # time"). Both train at once, one thread each, under one time limit; the
 # step counts size each cosine schedule so both use about the same CPU
-# seconds (CPU time measured in session 49: 1.40 s a flat step of 16 × 8
-# frames, 2.07–2.27 s a frame-model step of 6 × 200 frames, one thread
-# each; 950 flat steps and 620 frame steps are ~1,330 s each). Each run's CPU seconds
+# seconds (session 51, both weighted, one thread each on one machine:
+# 1,425 flat steps of 16 × 8 frames 1,316 s, 830 frame-model steps of
+# 6 × 200 frames 1,327 s; session 49's per-step figures, 1.40 s and
+# 2.07–2.27 s, were taken on a busier machine and gave 950 / 620 steps,
+# about two thirds of that budget). Each run's CPU seconds
 # (user + system, what a busy machine does not inflate) go to
 # RUN_DIR/{flat,frame}.cpu. Generation is measured with the seeds in
 # SEEDS (default "0 100"). Both draw AIST++-VRM twice as often as a
@@ -17,8 +19,8 @@
 set -euo pipefail
 run=${1:?run folder}
 secs=${2:-2700}
-flat_steps=${3:-950}
-frame_steps=${4:-620}
+flat_steps=${3:-1425}
+frame_steps=${4:-830}
 data=${CHOREO_DATA:-../shared/data}
 weights=()
 for w in ${WEIGHTS-aistpp-vrm=2}; do weights+=(--corpus-weight "$w"); done
