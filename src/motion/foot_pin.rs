@@ -298,30 +298,31 @@ mod tests {
     /// back, so the left foot slides along the floor: pinned, the ankle
     /// stays within a few millimetres of where it touched, the right leg
     /// and the root are untouched, and bone lengths are kept.
-    #[test]
-    fn a_sliding_foot_stays_where_it_touched() {
+    /// 40 frames at 20 fps standing in place, one leg's hip flexing by
+    /// up to 0.08 rad and back (a half sine) and its knee at
+    /// `knee(flexion)`; returns it with the leg's hip and knee indices.
+    fn hip_swing(side: &str, knee: impl Fn(f64) -> f64) -> (Motion, usize, usize) {
         let sk = Skeleton::smpl13();
         let j = sk.len();
-        let hip = sk.index_of("Left_Hip").unwrap();
-        let knee = sk.index_of("Left_Knee").unwrap();
+        let h = sk.index_of(&format!("{side}_Hip")).unwrap();
+        let k = sk.index_of(&format!("{side}_Knee")).unwrap();
         let n = 40;
         let mut rot = vec![[0.0; 3]; n * j];
         for f in 0..n {
-            // 0.08 rad of hip flexion with a matching knee bend: the foot
-            // moves ~7 cm along the ground and ~3 mm up over the clip.
             let a = 0.08 * (f as f64 / n as f64 * std::f64::consts::PI).sin();
-            rot[f * j + hip] = [-a, 0.0, 0.0];
-            rot[f * j + knee] = [0.2 * a, 0.0, 0.0];
+            rot[f * j + h] = [-a, 0.0, 0.0];
+            rot[f * j + k] = [knee(a), 0.0, 0.0];
         }
-        let m = Motion::new(
-            "t",
-            20.0,
-            sk.clone(),
-            vec![[0.0; 3]; n],
-            rot,
-            Default::default(),
-        )
-        .unwrap();
+        let m = Motion::new("t", 20.0, sk, vec![[0.0; 3]; n], rot, Default::default()).unwrap();
+        (m, h, k)
+    }
+
+    #[test]
+    fn a_sliding_foot_stays_where_it_touched() {
+        // A matching knee bend: the foot moves ~7 cm along the ground and
+        // ~3 mm up over the clip.
+        let (m, hip, knee) = hip_swing("Left", |a| 0.2 * a);
+        let (sk, j, n) = (m.skeleton.clone(), m.joints(), m.frames());
         let before = ankle_paths(&m);
         let slide = before
             .iter()
@@ -351,28 +352,8 @@ mod tests {
     /// higher (a leg raised from the first frame) it is left in the air.
     #[test]
     fn a_foot_standing_higher_than_the_other_is_pinned_on_its_own_floor() {
-        let sk = Skeleton::smpl13();
-        let j = sk.len();
-        let hip = sk.index_of("Right_Hip").unwrap();
-        let knee = sk.index_of("Right_Knee").unwrap();
-        let n = 40;
-        let clip = |bend: f64| {
-            let mut rot = vec![[0.0; 3]; n * j];
-            for f in 0..n {
-                let a = 0.08 * (f as f64 / n as f64 * std::f64::consts::PI).sin();
-                rot[f * j + hip] = [-a, 0.0, 0.0];
-                rot[f * j + knee] = [bend, 0.0, 0.0];
-            }
-            Motion::new(
-                "t",
-                20.0,
-                sk.clone(),
-                vec![[0.0; 3]; n],
-                rot,
-                Default::default(),
-            )
-            .unwrap()
-        };
+        let clip = |bend: f64| hip_swing("Right", move |_| bend).0;
+        let n = clip(0.0).frames();
         let rise = |m: &Motion| {
             let p = ankle_paths(m);
             let low = |k: usize| p.iter().map(|a| a[k][1]).fold(f64::INFINITY, f64::min);
