@@ -34,10 +34,11 @@ use super::skeleton::Skeleton;
 pub const PIN_HEIGHT: f64 = 0.05;
 /// A foot's floor is the lowest height it has reached itself, but no
 /// higher than this above the lowest either foot has reached (metres).
-/// Generated legs are not symmetric to the millimetre: one ankle's
-/// lowest lies 2–5 cm above the other's in a quarter of the frame
-/// model's AIST++ clips (under 1 cm in real takes), and measured from
-/// the shared floor that foot was never pinned though it stood. The cap
+/// Generated legs are not symmetric to the millimetre: the two ankles'
+/// lowest heights differ by over 3.7 cm in a quarter of the frame
+/// model's AIST++ clips (by under 1 cm in three quarters of real takes),
+/// and measured from the shared floor the higher foot was never pinned
+/// though it stood (docs/RESULTS.md, "Session 52"). The cap
 /// keeps a foot held up all along (a leg raised from the first frame)
 /// from being pinned in the air.
 pub const FLOOR_SPREAD: f64 = 0.05;
