@@ -295,10 +295,6 @@ mod tests {
             .collect()
     }
 
-    /// A body standing in place whose left hip swings slowly forward and
-    /// back, so the left foot slides along the floor: pinned, the ankle
-    /// stays within a few millimetres of where it touched, the right leg
-    /// and the root are untouched, and bone lengths are kept.
     /// 40 frames at 20 fps standing in place, one leg's hip flexing by
     /// up to 0.08 rad and back (a half sine) and its knee at
     /// `knee(flexion)`; returns it with the leg's hip and knee indices.
@@ -318,6 +314,10 @@ mod tests {
         (m, h, k)
     }
 
+    /// A body standing in place whose left hip swings slowly forward and
+    /// back, so the left foot slides along the floor: pinned, the ankle
+    /// stays within a few millimetres of where it touched, the right leg
+    /// and the root are untouched, and bone lengths are kept.
     #[test]
     fn a_sliding_foot_stays_where_it_touched() {
         // A matching knee bend: the foot moves ~7 cm along the ground and
