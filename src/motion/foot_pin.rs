@@ -88,7 +88,6 @@ struct Leg {
 pub struct FootPin {
     legs: Vec<Leg>,
     fps: f64,
-    floor: f64,
 }
 
 impl FootPin {
@@ -111,11 +110,7 @@ impl FootPin {
                 fading: None,
             });
         }
-        Some(FootPin {
-            legs,
-            fps,
-            floor: f64::INFINITY,
-        })
+        Some(FootPin { legs, fps })
     }
 
     /// One frame: its local rotations (changed in place: hips, knees and
@@ -124,8 +119,13 @@ impl FootPin {
         let (glob, pos) = frame_fk(skeleton, rotations, trans);
         for leg in &mut self.legs {
             leg.floor = leg.floor.min(pos[leg.ankle][1]);
-            self.floor = self.floor.min(leg.floor);
         }
+        // The lowest either foot has reached.
+        let shared = self
+            .legs
+            .iter()
+            .map(|l| l.floor)
+            .fold(f64::INFINITY, f64::min);
         for li in 0..self.legs.len() {
             let leg = &mut self.legs[li];
             let free = pos[leg.ankle];
@@ -139,7 +139,7 @@ impl FootPin {
             // fast (footwork, a kick).
             let down = match leg.pin {
                 None => {
-                    let floor = leg.floor.min(self.floor + FLOOR_SPREAD);
+                    let floor = leg.floor.min(shared + FLOOR_SPREAD);
                     free[1] < floor + PIN_HEIGHT && speed < PIN_SPEED
                 }
                 Some(pin) => free[1] < pin[1] + PIN_LIFT && speed < 2.0 * PIN_SPEED,
