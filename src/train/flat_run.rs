@@ -209,9 +209,9 @@ pub fn train(
     );
     // Length-weighted draws, each corpus's frames counted as often as its
     // weight says (the frame trainer's draws).
-    let cum = super::frame_run::draw_weights(&corpus.train, fl, &s.corpus_weights, None)?;
+    let cum = super::draws::draw_weights(&corpus.train, fl, &s.corpus_weights, None)?;
     if !s.corpus_weights.is_empty() {
-        super::frame_run::log_shares(&corpus.train, &cum);
+        super::draws::log_shares(&corpus.train, &cum);
     }
     let mut rng = StdRng::seed_from_u64(s.seed.wrapping_add(state.step as u64));
     std::fs::create_dir_all(&a.out)?;

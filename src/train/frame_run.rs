@@ -58,7 +58,7 @@ impl FrameData {
         weights: &BTreeMap<String, f64>,
         balance: Option<&str>,
     ) -> Result<FrameData> {
-        let cum = draw_weights(train, fl, weights, balance)?;
+        let cum = super::draws::draw_weights(train, fl, weights, balance)?;
         let seqs = train
             .iter()
             .map(|s| {
@@ -74,102 +74,8 @@ impl FrameData {
 
     /// Each corpus's share of the draws, for the log.
     pub fn shares(&self, train: &[Sequence]) -> BTreeMap<String, f64> {
-        shares(train, &self.cum)
+        super::draws::shares(train, &self.cum)
     }
-}
-
-/// Each corpus's share of the draws `cum` ([`draw_weights`]) of `train`.
-pub fn shares(train: &[Sequence], cum: &[usize]) -> BTreeMap<String, f64> {
-    let total = *cum.last().unwrap_or(&1) as f64;
-    let mut out = BTreeMap::new();
-    let mut prev = 0;
-    for (s, &c) in train.iter().zip(cum) {
-        *out.entry(s.corpus.clone()).or_insert(0.0) += (c - prev) as f64 / total;
-        prev = c;
-    }
-    out
-}
-
-/// Logs each corpus's share of the draws `cum` of `train`.
-pub fn log_shares(train: &[Sequence], cum: &[usize]) {
-    tracing::info!(
-        "draws per corpus: {}",
-        shares(train, cum)
-            .iter()
-            .map(|(k, v)| format!("{k} {:.1} %", 100.0 * v))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
-}
-
-/// Cumulative draw weights of the training sequences, for
-/// [`FrameData::balanced`] and the flat GPT's window draws: each
-/// sequence's frame count times its corpus's weight, balanced over a
-/// label kind's values when `balance` names one (see
-/// [`FrameData::balanced`] for the checks and the errors).
-pub fn draw_weights(
-    train: &[Sequence],
-    fl: usize,
-    weights: &BTreeMap<String, f64>,
-    balance: Option<&str>,
-) -> Result<Vec<usize>> {
-    for (name, w) in weights {
-        if !train.iter().any(|s| &s.corpus == name) {
-            let mut have: Vec<&str> = train.iter().map(|s| s.corpus.as_str()).collect();
-            have.sort();
-            have.dedup();
-            bail!("--corpus-weight: no training sequence comes from corpus {name:?} (the corpora read: {have:?})");
-        }
-        if !(w.is_finite() && *w > 0.0) {
-            bail!("--corpus-weight: the weight of {name:?} must be a positive number, not {w}");
-        }
-    }
-    let base = |s: &Sequence| {
-        (s.frames(fl).max(1) as f64) * weights.get(&s.corpus).copied().unwrap_or(1.0)
-    };
-    // Per value of the balanced kind: its sequences' summed weight.
-    let mut by_value: BTreeMap<&str, f64> = BTreeMap::new();
-    if let Some(kind) = balance {
-        for s in train {
-            if let Some(v) = s.labels.get(kind) {
-                *by_value.entry(v.as_str()).or_insert(0.0) += base(s);
-            }
-        }
-        if by_value.is_empty() {
-            bail!("--balance: no training sequence carries a {kind:?} label");
-        }
-    }
-    let even = by_value.values().sum::<f64>() / by_value.len().max(1) as f64;
-    if let Some(kind) = balance {
-        let total: f64 = train.iter().map(base).sum();
-        tracing::info!(
-            "balanced on {kind}: {} values, each {:.2} % of the draws (before: {})",
-            by_value.len(),
-            100.0 * even / total,
-            by_value
-                .iter()
-                .map(|(v, w)| format!("{v} {:.2} %", 100.0 * w / total))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-    }
-    // Balanced weights are fractions of frames: scaled so that rounding
-    // does not move a short take's share (plain draws keep whole frame
-    // counts, so a run resumed from before the flag draws as it did).
-    let scale = if balance.is_some() { 16.0 } else { 1.0 };
-    let mut acc = 0;
-    Ok(train
-        .iter()
-        .map(|s| {
-            let value = balance.and_then(|k| s.labels.get(k));
-            let w = match value.and_then(|v| by_value.get(v.as_str())) {
-                Some(total) => base(s) * even / total,
-                None => base(s),
-            };
-            acc += (scale * w).round().max(1.0) as usize;
-            acc
-        })
-        .collect())
 }
 
 /// One optimisation step on a fresh batch; returns (nats per frame,
@@ -453,7 +359,7 @@ pub fn run(run: &FrameRun, vocab: &Vocabulary, corpus: &Corpus) -> Result<FrameS
     };
     let s = st.settings.clone();
     let data = FrameData::balanced(&corpus.train, fl, &s.corpus_weights, s.balance.as_deref())?;
-    log_shares(&corpus.train, &data.cum);
+    super::draws::log_shares(&corpus.train, &data.cum);
     tracing::info!(
         "frame model: {} parameters; global d {} × {} layers, local d {} × {} layers, context {} frames, change radius {}",
         net.params.count(),

@@ -4,6 +4,7 @@
 
 pub mod baselines;
 pub mod data;
+pub mod draws;
 pub mod export;
 pub mod flat_run;
 pub mod frame;
@@ -15,6 +16,7 @@ pub mod fused;
 pub mod inbetween;
 pub mod model;
 pub mod parity;
+pub use draws::cumulative;
 
 use crate::lm::{bits_per_frame, ModelConfig};
 use crate::tokenize::vocab::Vocabulary;
@@ -377,13 +379,6 @@ pub fn optimise(
     let grads = total.backward()?;
     opt.step(params, &grads)?;
     Ok(())
-}
-
-/// Cumulative frame counts for length-weighted sequence draws (every
-/// corpus weighted alike).
-pub fn cumulative(corpus: &Corpus, fl: usize) -> Vec<usize> {
-    frame_run::draw_weights(&corpus.train, fl, &Default::default(), None)
-        .expect("no weights or balance to check")
 }
 
 pub fn device() -> Device {
