@@ -6,12 +6,14 @@
 # step counts size each cosine schedule so both use about the same CPU
 # seconds (session 51, both weighted, one thread each on one machine:
 # 1,425 flat steps of 16 × 8 frames 1,316 s, 830 frame-model steps of
-# 6 × 200 frames 1,327 s; session 49's per-step figures, 1.40 s and
+# 6 × 200 frames 1,327 s; session 53, another machine: 1,793 / 1,740 s;
+# session 49's per-step figures, 1.40 s and
 # 2.07–2.27 s, were taken on a busier machine and gave 950 / 620 steps,
 # about two thirds of that budget). Each run's CPU seconds
 # (user + system, what a busy machine does not inflate) go to
 # RUN_DIR/{flat,frame}.cpu. Generation is measured with the seeds in
-# SEEDS (default "0 100"). Both draw AIST++-VRM twice as often as a
+# SEEDS (default "0 100 200 300"), and scripts/compare_table.py prints the
+# table. Both draw AIST++-VRM twice as often as a
 # length-weighted draw would (WEIGHTS, default "aistpp-vrm=2"; "" for
 # plain draws): with it the frame model's AIST++ poses hold under the
 # lighter genre pull below (docs/RESULTS.md, "Session 51").
@@ -78,19 +80,22 @@ $C bench model --model "$run/flat/export" --frames 200 > "$run/flat.bench.json"
 #    genre: top-p 1, max_jump 48, 4 candidates, jerk price 1, ease 1)
 #    except the genre pull, 0.75 where the bundled model's is 2 (at 2 this
 #    budget's genre clips all keep one energy), and both with the price on
-#    sliding feet, skate 3 (docs/RESULTS.md, "Session 51"). Every row of both models is also measured with the root from
+#    sliding feet, skate 3 (docs/RESULTS.md, "Session 51"); beside them the
+#    style default without the price, and the genre pull at 1 and at 2
+#    (the bundled default), skate 3 (session 53). Every row of both models is also measured with the root from
 #    the feet (Bandai; the AIST++ root stays in place) and the feet pinned.
 per=${GEN_PER_LABEL:-6}
-for seed in ${SEEDS:-0 100}; do
+for seed in ${SEEDS:-0 100 200 300}; do
     $C eval generate --model "$run/flat/export" --data "$data/bandai" --labels style --per-label "$per" --seed "$seed" \
         --sampling 1:0:0.95 --exemplar both --root both --feet both --json > "$run/flat.gen.bandai.s$seed.json" &
     $C eval generate --model "$run/flat/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" --seed "$seed" \
         --sampling 1:0:0.95 --exemplar both --feet both --json > "$run/flat.gen.vrm.s$seed.json" &
     wait
     $C eval generate --model "$run/frame/export" --data "$data/bandai" --labels style --per-label "$per" --seed "$seed" \
-        --sampling 1:0:1:1:2:12:1.5:0:4:0:1:1:6:1:3 --exemplar auto --root both --feet both --json > "$run/frame.gen.bandai.s$seed.json" &
+        --sampling 1:0:1:1:2:12:1.5:0:4:0:1:1:6:1:3,1:0:1:1:2:12:1.5:0:4:0:1:1:6:1:0 --exemplar auto --root both --feet both --json > "$run/frame.gen.bandai.s$seed.json" &
     $C eval generate --model "$run/frame/export" --data "$data/aistpp-vrm/motions" --labels genre --per-label "$per" --seed "$seed" \
-        --sampling 1:0:1:1:2:48:0.75:0:4:0:1:1:0:1:3 --exemplar auto --feet both --json > "$run/frame.gen.vrm.s$seed.json" &
+        --sampling 1:0:1:1:2:48:0.75:0:4:0:1:1:0:1:3,1:0:1:1:2:48:1:0:4:0:1:1:0:1:3,1:0:1:1:2:48:2:0:4:0:1:1:0:1:3 --exemplar auto --feet both --json > "$run/frame.gen.vrm.s$seed.json" &
     wait
 done
-echo "tables in $run"
+echo "eval JSONs in $run"
+python3 scripts/compare_table.py "$run" "${SEEDS:-0 100 200 300}"
